@@ -1,0 +1,240 @@
+"""The scene model every renderer shares: meshes, materials, lights, media.
+
+Units and light conventions (the rasterizer and the path tracer must agree on these):
+
+* Radiance is linear RGB float32, in W / (m^2 sr) per channel ("scene units").
+* ``PointLight.intensity`` and ``SpotLight.intensity`` are radiant intensity I (W/sr): the
+  irradiance at distance r on a surface tilted by theta is ``I cos(theta) / r^2``
+  (times the spot falloff).
+* ``DirectionalLight.irradiance`` is the irradiance E (W/m^2) on a surface facing the light.
+* An area light is a mesh whose material is :class:`Emissive` with radiance ``Le``, emitting
+  from the front side (the side its face normals point to) unless ``two_sided``.
+* A Lambertian surface of albedo rho under irradiance E has radiance ``rho E / pi``.
+* Texture albedo is stored as an sRGB-encoded uint8 image (as photographs are) and decoded
+  to linear albedo with :func:`render.color.srgb_to_linear` by every renderer alike.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+__all__ = [
+    "Lambertian", "Mirror", "Dielectric", "Emissive", "Material",
+    "PointLight", "SpotLight", "DirectionalLight", "Light", "Medium",
+    "SceneObject", "Scene", "spot_falloff",
+]
+
+
+def _rgb(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.size == 1:
+        a = np.repeat(a, 3)
+    if a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a < 0):
+        raise ValueError(f"{name} must be three finite non-negative numbers, got {v!r}")
+    return a
+
+
+@dataclass
+class Lambertian:
+    """Diffuse reflector. ``albedo`` (3,) in [0, 1]; ``texture`` (H, W, 3) uint8 sRGB or None.
+
+    With a texture, albedo at a point = srgb_to_linear(texel) * albedo (albedo acts as a tint).
+    """
+
+    albedo: np.ndarray = field(default_factory=lambda: np.full(3, 0.8))
+    texture: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.albedo = _rgb(self.albedo, "albedo")
+        if np.any(self.albedo > 1):
+            raise ValueError(f"albedo must lie in [0, 1], got {self.albedo.tolist()}")
+        if self.texture is not None:
+            t = np.asarray(self.texture)
+            if t.ndim != 3 or t.shape[2] != 3 or t.dtype != np.uint8:
+                raise ValueError(f"texture must be (H, W, 3) uint8, got {t.shape} {t.dtype}")
+
+
+@dataclass
+class Mirror:
+    """Perfect specular reflector with reflectance ``reflectance`` (3,)."""
+
+    reflectance: np.ndarray = field(default_factory=lambda: np.ones(3))
+
+    def __post_init__(self):
+        self.reflectance = _rgb(self.reflectance, "reflectance")
+
+
+@dataclass
+class Dielectric:
+    """Smooth glass-like interface with index of refraction ``ior`` (outside is 1)."""
+
+    ior: float = 1.5
+
+    def __post_init__(self):
+        if not (np.isfinite(self.ior) and self.ior > 0):
+            raise ValueError(f"ior must be positive, got {self.ior}")
+
+
+@dataclass
+class Emissive:
+    """Area source: emits radiance ``radiance`` (3,) from its front side (or both sides).
+
+    Emissive surfaces reflect nothing (black body apart from emission).
+    """
+
+    radiance: np.ndarray = field(default_factory=lambda: np.ones(3))
+    two_sided: bool = False
+
+    def __post_init__(self):
+        self.radiance = _rgb(self.radiance, "radiance")
+
+
+Material = Lambertian | Mirror | Dielectric | Emissive
+
+
+@dataclass
+class PointLight:
+    """Isotropic point source of radiant intensity ``intensity`` (3,) W/sr."""
+
+    position: np.ndarray
+    intensity: np.ndarray
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=np.float64)
+        self.intensity = _rgb(self.intensity, "intensity")
+
+
+def spot_falloff(cos_theta, cos_inner: float, cos_outer: float):
+    """Spot-light angular falloff in [0, 1] (pbrt-v4's smoothstep between the cone cosines).
+
+    cos_theta: array of cosines between the spot axis and the direction to the point.
+    1 inside the inner cone, 0 outside the outer cone, smoothstep in between.
+    """
+    width = max(cos_inner - cos_outer, 1e-9)
+    x = np.clip((np.asarray(cos_theta) - cos_outer) / width, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+@dataclass
+class SpotLight:
+    """Point source restricted to a cone: intensity ``intensity`` (W/sr) times :func:`spot_falloff`.
+
+    ``direction`` is the unit axis the spot points along; angles are half-angles in radians.
+    """
+
+    position: np.ndarray
+    direction: np.ndarray
+    intensity: np.ndarray
+    inner_angle: float = np.radians(25.0)
+    outer_angle: float = np.radians(35.0)
+
+    def __post_init__(self):
+        self.position = np.asarray(self.position, dtype=np.float64)
+        d = np.asarray(self.direction, dtype=np.float64)
+        n = np.linalg.norm(d)
+        if n < 1e-12:
+            raise ValueError("spot direction must be non-zero")
+        self.direction = d / n
+        self.intensity = _rgb(self.intensity, "intensity")
+        if not (0 <= self.inner_angle <= self.outer_angle < np.pi / 2):
+            raise ValueError("spot angles must satisfy 0 <= inner <= outer < 90 degrees")
+
+
+@dataclass
+class DirectionalLight:
+    """Distant source: light travels along unit ``direction``; irradiance ``irradiance`` (W/m^2)."""
+
+    direction: np.ndarray
+    irradiance: np.ndarray
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, dtype=np.float64)
+        n = np.linalg.norm(d)
+        if n < 1e-12:
+            raise ValueError("directional light direction must be non-zero")
+        self.direction = d / n
+        self.irradiance = _rgb(self.irradiance, "irradiance")
+
+
+Light = PointLight | SpotLight | DirectionalLight
+
+
+@dataclass
+class Medium:
+    """Participating medium bounded by a closed mesh (data only for now).
+
+    Coefficients in 1/scene-unit: absorption ``sigma_a`` (3,), scattering ``sigma_s`` (3,),
+    emission radiance ``emission`` (3,), Henyey-Greenstein ``g``. ``density`` is an optional
+    (D, H, W) float32 voxel grid scaling the coefficients over the bounds' box.
+    """
+
+    bounds: trimesh.Trimesh
+    sigma_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sigma_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    emission: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    g: float = 0.0
+    density: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.sigma_a = _rgb(self.sigma_a, "sigma_a")
+        self.sigma_s = _rgb(self.sigma_s, "sigma_s")
+        self.emission = _rgb(self.emission, "emission")
+        if not -1 < self.g < 1:
+            raise ValueError(f"g must lie in (-1, 1), got {self.g}")
+
+
+@dataclass
+class SceneObject:
+    """A triangle mesh in world coordinates with one material.
+
+    ``mesh.visual.uv`` (V, 2) holds texture coordinates when the material is textured
+    (u right, v up, OpenGL convention: v = 0 is the bottom row of the texture image).
+    ``is_subject`` marks the captured object (what the capture's masks show).
+    """
+
+    name: str
+    mesh: trimesh.Trimesh
+    material: Material
+    is_subject: bool = False
+
+    @property
+    def uv(self) -> np.ndarray | None:
+        uv = getattr(self.mesh.visual, "uv", None)
+        return None if uv is None else np.asarray(uv, dtype=np.float64)
+
+
+@dataclass
+class Scene:
+    """Everything a renderer needs. ``up`` is the world up axis (unit (3,)).
+
+    ``effects`` is the set of light-transport effects to simulate (see
+    :mod:`render.effects`); ``None`` means "infer from content".
+    """
+
+    name: str
+    objects: list[SceneObject]
+    lights: list[Light] = field(default_factory=list)
+    media: list[Medium] = field(default_factory=list)
+    background: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    effects: frozenset[str] | None = None
+
+    def __post_init__(self):
+        self.background = _rgb(self.background, "background")
+        names = [o.name for o in self.objects]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"object names must be unique, repeated: {sorted(dup)}")
+
+    @property
+    def emitters(self) -> list[SceneObject]:
+        return [o for o in self.objects if isinstance(o.material, Emissive)]
+
+    def bounds(self) -> np.ndarray:
+        """(2, 3) float64 axis-aligned bounds of all geometry."""
+        if not self.objects:
+            return np.zeros((2, 3))
+        b = np.array([o.mesh.bounds for o in self.objects])
+        return np.stack([b[:, 0].min(0), b[:, 1].max(0)])
