@@ -1,0 +1,179 @@
+"""Turn a validated :class:`rig.spec.SceneSpec` into the render scene model and cameras."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from render.camera import Camera
+from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight,
+                          Scene, SceneObject, SpotLight)
+
+from .layouts import layout_cameras, make_intrinsics
+from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, SceneSpec,
+                   ShapeSpec, SpecError, SpotLightSpec, load_spec)
+from .textures import load_texture
+
+__all__ = ["RigScene", "build_scene", "load_scene", "quad_mesh", "box_face_quads"]
+
+
+@dataclass
+class RigScene:
+    """A loaded scene: the render model, cameras per split, and what a capture records about it."""
+
+    spec: SceneSpec
+    scene: Scene
+    cameras: dict[str, list[Camera]]
+    #: calibration targets in the scene: name -> {"board": CharucoTexture dict, "board_to_world": 4x4}
+    targets: dict[str, dict] = field(default_factory=dict)
+
+
+def quad_mesh(corners) -> trimesh.Trimesh:
+    """Two triangles over four corners (counter-clockwise seen from the front), with uv
+    corner 0 -> (0, 0), 1 -> (1, 0), 2 -> (1, 1), 3 -> (0, 1)."""
+    v = np.asarray(corners, dtype=np.float64)
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64)
+    mesh = trimesh.Trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv)
+    return mesh
+
+
+def box_face_quads(size, center) -> list[np.ndarray]:
+    """Corners of the six faces of an axis-aligned box, order +x, -x, +y, -y, +z, -z.
+
+    Each face's corners run counter-clockwise seen from outside, starting bottom-left, with +z up
+    on the side faces and +y up on the top and bottom, so textures appear unmirrored from outside.
+    """
+    c, h = np.asarray(center, float), np.asarray(size, float) / 2
+    ex, ey, ez = np.eye(3)
+    faces = []
+    for n, up in ((ex, ez), (-ex, ez), (ey, ez), (-ey, ez), (ez, ey), (-ez, ey)):
+        right = np.cross(-n, up)  # a viewer looking along -n with ``up`` up has this on the right
+        fc, r, u = c + n * h, right * h, up * h
+        faces.append(np.array([fc - r - u, fc + r - u, fc + r + u, fc - r + u]))
+    return faces
+
+
+def _rotation_z_to(up: np.ndarray) -> np.ndarray:
+    return trimesh.geometry.align_vectors([0, 0, 1], up)
+
+
+def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) -> trimesh.Trimesh:
+    if shape.box is not None:
+        m = trimesh.creation.box(extents=shape.box.size)
+        m.apply_translation(shape.box.center)
+        return m
+    if shape.sphere is not None:
+        m = trimesh.creation.icosphere(subdivisions=shape.sphere.subdivisions, radius=shape.sphere.radius)
+        m.apply_translation(shape.sphere.center)
+        return m
+    if shape.cylinder is not None:
+        c = shape.cylinder
+        m = trimesh.creation.cylinder(radius=c.radius, height=c.height, sections=c.sections)
+        m.apply_transform(_rotation_z_to(up))
+        m.apply_translation(c.center)
+        return m
+    if shape.quad is not None:
+        return quad_mesh(shape.quad.corners)
+    path = Path(shape.mesh.file)
+    path = path if path.is_absolute() else base_dir / path
+    if not path.is_file():
+        raise SpecError(f"{where}.mesh.file: file not found: {path}")
+    try:
+        m = trimesh.load(path, force="mesh")
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise SpecError(f"{where}.mesh.file: cannot read {path}: {exc}") from None
+    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+        raise SpecError(f"{where}.mesh.file: {path} holds no triangles")
+    m.apply_scale(shape.mesh.scale)
+    m.apply_translation(shape.mesh.translate)
+    return m
+
+
+def _material(spec, textures: dict[str, np.ndarray]):
+    if isinstance(spec, LambertianSpec):
+        return Lambertian(np.array(spec.albedo), textures[spec.texture] if spec.texture else None)
+    if isinstance(spec, MirrorSpec):
+        return Mirror(np.array(spec.reflectance))
+    if isinstance(spec, DielectricSpec):
+        return Dielectric(spec.ior)
+    if isinstance(spec, EmissiveSpec):
+        return Emissive(np.array(spec.radiance), spec.two_sided)
+    raise TypeError(spec)
+
+
+def _board_to_world(corners: np.ndarray, board) -> np.ndarray:
+    """OpenCV board frame (origin at the image's top-left corner, x right, y down the image,
+    z into the board) for a board texture on a quad whose corner 3 is the image's top-left."""
+    x = corners[2] - corners[3]
+    y = corners[0] - corners[3]
+    width, height = board.squares[0] * board.square_length, board.squares[1] * board.square_length
+    if not (np.isclose(np.linalg.norm(x), width, rtol=1e-6) and np.isclose(np.linalg.norm(y), height, rtol=1e-6)):
+        raise SpecError(f"charuco board is {width} x {height} but its quad is "
+                        f"{np.linalg.norm(x):.6g} x {np.linalg.norm(y):.6g}")
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1] = x / np.linalg.norm(x), y / np.linalg.norm(y)
+    m[:3, 2] = np.cross(m[:3, 0], m[:3, 1])
+    m[:3, 3] = corners[3]
+    return m
+
+
+def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
+    """Spec -> scene model, cameras per split, calibration targets. Raises SpecError."""
+    up = np.asarray(spec.up, float)
+    if np.linalg.norm(up) < 1e-12:
+        raise SpecError("up: must be a non-zero vector")
+    up = up / np.linalg.norm(up)
+    textures = {name: load_texture(name, t, base_dir) for name, t in spec.textures.items()}
+    materials = {name: _material(m, textures) for name, m in spec.materials.items()}
+    objects: list[SceneObject] = []
+    targets: dict[str, dict] = {}
+    for i, o in enumerate(spec.objects):
+        where = f"objects.{i}"
+        if o.face_materials is not None:
+            parts = [(f"{o.name}.{face}", quad_mesh(q), mat) for face, q, mat in
+                     zip(("px", "nx", "py", "ny", "pz", "nz"), box_face_quads(o.shape.box.size, o.shape.box.center),
+                         o.face_materials)]
+        else:
+            parts = [(o.name, _shape_mesh(o.shape, up, base_dir, where), o.material)]
+        for name, mesh, mat_name in parts:
+            mat = materials[mat_name]
+            if isinstance(mat, Lambertian) and mat.texture is not None and getattr(mesh.visual, "uv", None) is None:
+                raise SpecError(f"{where}.material: texture '{spec.materials[mat_name].texture}' needs a shape with "
+                                "texture coordinates (quad, box faces or a mesh file with uv)")
+            objects.append(SceneObject(name, mesh, mat, is_subject=o.subject))
+            tex = spec.materials[mat_name]
+            if isinstance(tex, LambertianSpec) and tex.texture and spec.textures[tex.texture].charuco is not None:
+                if o.shape.quad is None:
+                    raise SpecError(f"{where}.shape: a charuco texture must sit on a quad")
+                board = spec.textures[tex.texture].charuco
+                targets[name] = {"board": board.model_dump(mode="json"),
+                                 "board_to_world": _board_to_world(np.asarray(o.shape.quad.corners, float), board).tolist()}
+    lights = []
+    for light in spec.lights:
+        if isinstance(light, PointLightSpec):
+            lights.append(PointLight(np.array(light.position), np.array(light.intensity)))
+        elif isinstance(light, SpotLightSpec):
+            lights.append(SpotLight(np.array(light.position), np.subtract(light.target, light.position),
+                                    np.array(light.intensity), np.radians(light.inner_deg), np.radians(light.outer_deg)))
+        else:
+            lights.append(DirectionalLight(np.array(light.direction), np.array(light.irradiance)))
+    media = [Medium(_shape_mesh(m.bounds, up, base_dir, f"media.{i}.bounds"), np.array(m.sigma_a),
+                    np.array(m.sigma_s), np.array(m.emission), m.g) for i, m in enumerate(spec.media)]
+    try:
+        scene = Scene(spec.name, objects, lights, media, np.array(spec.background), up,
+                      frozenset(spec.effects) if spec.effects is not None else None)
+    except ValueError as exc:
+        raise SpecError(str(exc)) from None
+    intrinsics = make_intrinsics(spec.cameras.intrinsics)
+    cameras = {split: layout_cameras(getattr(spec.cameras, split), intrinsics, up, split)
+               for split in ("train", "test", "scene") if getattr(spec.cameras, split)}
+    return RigScene(spec, scene, cameras, targets)
+
+
+def load_scene(scene: str | Path) -> RigScene:
+    """Load a built-in scene name or a YAML path into a :class:`RigScene` (SpecError on bad input)."""
+    spec, base_dir = load_spec(scene)
+    return build_scene(spec, base_dir)

@@ -1,0 +1,81 @@
+"""Camera layouts: turntable rings, a Levoy-Hanrahan planar gantry, explicit views.
+
+All poses are camera-to-world (4, 4) float64 in OpenCV axes (render.poses.look_at).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from render.camera import Camera, Intrinsics
+from render.poses import look_at
+
+from .spec import GantryLayout, IntrinsicsSpec, LayoutSpec, RingLayout, ViewLayout
+
+__all__ = ["make_intrinsics", "ring_poses", "gantry_poses", "layout_cameras"]
+
+
+def make_intrinsics(spec: IntrinsicsSpec) -> Intrinsics:
+    if spec.fov_y_deg is not None:
+        k = Intrinsics.from_fov(spec.width, spec.height, spec.fov_y_deg)
+        return Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy, spec.dist)
+    fy = spec.fy if spec.fy is not None else spec.fx
+    cx = spec.cx if spec.cx is not None else spec.width / 2
+    cy = spec.cy if spec.cy is not None else spec.height / 2
+    return Intrinsics(spec.width, spec.height, spec.fx, fy, cx, cy, spec.dist)
+
+
+def _frame(up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Orthonormal (a, b, up) with a, b spanning the plane perpendicular to ``up``."""
+    up = up / np.linalg.norm(up)
+    helper = np.array([1.0, 0, 0]) if abs(up[0]) < 0.9 else np.array([0, 1.0, 0])
+    a = np.cross(up, helper)
+    a /= np.linalg.norm(a)
+    return a, np.cross(up, a), up
+
+
+def ring_poses(ring: RingLayout, up: np.ndarray) -> list[np.ndarray]:
+    """``count`` poses at equal azimuth steps, counter-clockwise seen from above."""
+    a, b, up = _frame(np.asarray(up, float))
+    target = np.asarray(ring.target, float)
+    el = np.radians(ring.elevation_deg)
+    poses = []
+    for k in range(ring.count):
+        az = np.radians(ring.azimuth_offset_deg) + 2 * np.pi * k / ring.count
+        direction = np.cos(el) * (np.cos(az) * a + np.sin(az) * b) + np.sin(el) * up
+        poses.append(look_at(target + ring.distance * direction, target, up))
+    return poses
+
+
+def gantry_poses(g: GantryLayout, up: np.ndarray) -> list[np.ndarray]:
+    """A grid of cameras in the plane through ``center`` perpendicular to center -> look_at,
+    all sharing the orientation of the central camera; row-major from the top-left."""
+    centre_pose = look_at(g.center, g.look_at, np.asarray(g.up if g.up is not None else up, float))
+    right, down = centre_pose[:3, 0], centre_pose[:3, 1]
+    us = (np.arange(g.nu) - (g.nu - 1) / 2) * (g.extent[0] / max(g.nu - 1, 1))
+    vs = (np.arange(g.nv) - (g.nv - 1) / 2) * (g.extent[1] / max(g.nv - 1, 1))
+    poses = []
+    for v in vs:
+        for u in us:
+            p = centre_pose.copy()
+            p[:3, 3] = centre_pose[:3, 3] + u * right + v * down
+            poses.append(p)
+    return poses
+
+
+def layout_cameras(layouts: list[LayoutSpec], intrinsics: Intrinsics, up, prefix: str) -> list[Camera]:
+    """Expand a split's layouts into named cameras ``<prefix>_<index:03d>`` (or a view's name)."""
+    up = np.asarray(up, float)
+    cams: list[Camera] = []
+    for layout in layouts:
+        if layout.ring is not None:
+            poses, names = ring_poses(layout.ring, up), None
+        elif layout.gantry is not None:
+            poses, names = gantry_poses(layout.gantry, up), None
+        else:
+            v: ViewLayout = layout.view
+            poses = [look_at(v.eye, v.target, np.asarray(v.up if v.up is not None else up, float))]
+            names = [v.name] if v.name else None
+        for i, pose in enumerate(poses):
+            name = names[i] if names else f"{prefix}_{len(cams):03d}"
+            cams.append(Camera(intrinsics, pose, name))
+    return cams
