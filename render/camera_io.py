@@ -1,0 +1,425 @@
+"""Camera exporters and importers: ``cameras.json``, COLMAP text model, ``transforms.json``.
+
+Pure functions over lists of :class:`render.camera.Camera`. Every writer is atomic (a temporary
+name renamed when complete, :func:`render.image_io.atomic_path`) and every format round-trips
+(tested in ``tests/render/test_camera_io.py``).
+
+Conventions on our side (see :mod:`render.camera`): poses are camera-to-world 4x4 float64 in
+OpenCV axes (x right, y down, z forward); ``cx, cy`` put pixel (row i, col j)'s centre at
+(j + 0.5, i + 0.5); distortion is OpenCV/Brown ``(k1, k2, p1, p2, k3)``. The world frame is
+never changed by an exporter.
+
+* ``cameras.json`` (ours, lossless): names, train/test split, intrinsics incl. distortion and
+  camera-to-world in OpenCV axes, with a ``convention`` block stating all of the above in words.
+* COLMAP text model (``cameras.txt``, ``images.txt``, empty ``points3D.txt``): world-to-camera
+  as a scalar-first quaternion ``QW QX QY QZ`` plus ``TX TY TZ``; COLMAP's principal point uses
+  the same pixel-centre-at-+0.5 convention as ours, so ``cx, cy`` are written unchanged.
+* ``transforms.json`` (nerfstudio / instant-ngp): camera-to-world in OpenGL axes (x right, y up,
+  z backward), ``fl_x fl_y cx cy w h``, ``k1 k2 p1 p2`` (``k3`` too when non-zero). Nerfstudio's
+  ray generation (``nerfstudio/cameras/cameras.py``: ``Cameras.get_image_coords`` defaults to
+  ``pixel_offset=0.5`` and ``_generate_rays_from_coords`` uses ``(x - cx) / fx``) samples pixel
+  centres at index + 0.5, so its ``cx, cy`` follow our convention too and are written unchanged;
+  its COLMAP converter likewise copies COLMAP's principal point as is.
+
+File-name convention for the COLMAP and ``transforms.json`` readers: a camera's ``name`` is the
+stem of its image file name (``"images/view_003.png"`` -> ``"view_003"``), as artifacts pair
+views by file stem.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .camera import Camera, Intrinsics
+from .image_io import atomic_path
+from .poses import c2w_to_colmap, colmap_to_c2w, opencv_to_opengl, opengl_to_opencv
+
+__all__ = [
+    "SPLITS", "CAMERAS_JSON_FORMAT",
+    "write_cameras_json", "read_cameras_json",
+    "write_colmap_text", "read_colmap_text",
+    "write_transforms_json", "read_transforms_json",
+]
+
+#: the split labels ``cameras.json`` accepts
+SPLITS = ("train", "test")
+CAMERAS_JSON_FORMAT = "lumigraph.cameras/1"
+
+_CONVENTION = {
+    "camera_frame": "OpenCV: x right, y down, z forward",
+    "cam_to_world": "4x4 row-major camera-to-world matrix in OpenCV camera axes, world units of the scene",
+    "pixel_centers": "pixel (row i, col j) has its centre at continuous image coordinates (j + 0.5, i + 0.5) "
+                     "(COLMAP's convention); cx, cy are given in it; OpenCV calls need cx - 0.5, cy - 0.5",
+    "intrinsics": "fx, fy, cx, cy in pixels; width, height in pixels",
+    "distortion": "OpenCV/Brown (k1, k2, p1, p2, k3) applied to normalized coordinates (x/z, y/z)",
+}
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def _check_cameras(cameras: Sequence[Camera]) -> list[Camera]:
+    cams = list(cameras)
+    if not cams:
+        raise ValueError("need at least one camera")
+    for c in cams:
+        if not isinstance(c, Camera):
+            raise ValueError(f"expected render.camera.Camera, got {type(c).__name__}")
+    return cams
+
+
+def _check_unique_names(cameras: Sequence[Camera]) -> None:
+    names = [c.name for c in cameras]
+    if any(not isinstance(n, str) or not n for n in names):
+        raise ValueError("every camera needs a non-empty name")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"camera names must be unique, repeated: {dup}")
+
+
+def _check_file_names(names: Sequence[str], n: int, what: str) -> list[str]:
+    out = [str(s) for s in names]
+    if len(out) != n:
+        raise ValueError(f"{what}: got {len(out)} names for {n} cameras")
+    for s in out:
+        if not s or any(ch.isspace() for ch in s):
+            raise ValueError(f"{what}: names must be non-empty without whitespace, got {s!r}")
+    dup = sorted({s for s in out if out.count(s) > 1})
+    if dup:
+        raise ValueError(f"{what}: names must be unique, repeated: {dup}")
+    return out
+
+
+def _finite(x, what: str) -> float:
+    v = float(x)
+    if not math.isfinite(v):
+        raise ValueError(f"{what} must be finite, got {x!r}")
+    return v
+
+
+def _rigid(m: np.ndarray, what: str) -> np.ndarray:
+    """Validate a (4, 4) rigid transform (rotation part orthonormal, det +1, last row 0 0 0 1)."""
+    m = np.asarray(m, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ValueError(f"{what}: expected a finite (4, 4) matrix, got shape {m.shape}")
+    R = m[:3, :3]
+    if (not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0
+            or not np.allclose(m[3], [0, 0, 0, 1], atol=1e-12)):
+        raise ValueError(f"{what}: not a rigid transform (rotation must be orthonormal with det +1)")
+    return m
+
+
+def _intrinsics_dict(k: Intrinsics) -> dict:
+    """:meth:`Intrinsics.to_dict` with plain Python numbers (numpy scalars are not JSON)."""
+    d = k.to_dict()
+    return {"width": int(d["width"]), "height": int(d["height"]),
+            **{n: float(d[n]) for n in ("fx", "fy", "cx", "cy")}, "dist": [float(v) for v in d["dist"]]}
+
+
+def _stem(file_name: str) -> str:
+    return Path(file_name).stem
+
+
+# --------------------------------------------------------------------------- cameras.json
+
+
+def write_cameras_json(path, cameras: Sequence[Camera], splits: Sequence[str]) -> None:
+    """Write ``cameras.json`` (lossless: floats are written with Python's round-trip repr).
+
+    cameras: N :class:`Camera` with unique names, poses camera-to-world in OpenCV axes.
+    splits: N split labels, one per camera, each in :data:`SPLITS` (``"train"`` or ``"test"``).
+    """
+    cams = _check_cameras(cameras)
+    _check_unique_names(cams)
+    splits = [str(s) for s in splits]
+    if len(splits) != len(cams):
+        raise ValueError(f"cameras.json: got {len(splits)} split labels for {len(cams)} cameras")
+    bad = sorted({s for s in splits if s not in SPLITS})
+    if bad:
+        raise ValueError(f"cameras.json: unknown split labels {bad}; known: {list(SPLITS)}")
+    doc = {
+        "format": CAMERAS_JSON_FORMAT,
+        "convention": _CONVENTION,
+        "cameras": [
+            {"name": c.name, "split": s, "intrinsics": _intrinsics_dict(c.intrinsics),
+             "cam_to_world": _rigid(c.cam_to_world, f"camera {c.name!r}").tolist()}
+            for c, s in zip(cams, splits)
+        ],
+    }
+    _write_json(path, doc)
+
+
+def read_cameras_json(path) -> tuple[list[Camera], list[str]]:
+    """Read ``cameras.json``: ``(cameras, splits)`` in file order (see :func:`write_cameras_json`)."""
+    doc = _read_json(path)
+    if doc.get("format") != CAMERAS_JSON_FORMAT:
+        raise ValueError(f"{path}: not a {CAMERAS_JSON_FORMAT} file (format={doc.get('format')!r})")
+    entries = doc.get("cameras")
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{path}: 'cameras' must be a non-empty list")
+    cams, splits = [], []
+    for i, e in enumerate(entries):
+        try:
+            split = e["split"]
+            cam = Camera(Intrinsics.from_dict(e["intrinsics"]),
+                         _rigid(np.array(e["cam_to_world"], dtype=np.float64), f"camera {i}"), str(e["name"]))
+        except (KeyError, TypeError) as err:
+            raise ValueError(f"{path}: camera {i}: missing or malformed field {err}") from None
+        if split not in SPLITS:
+            raise ValueError(f"{path}: camera {i}: unknown split {split!r}; known: {list(SPLITS)}")
+        cams.append(cam)
+        splits.append(split)
+    _check_unique_names(cams)
+    return cams, splits
+
+
+# --------------------------------------------------------------------------- COLMAP text
+
+
+def _colmap_camera(k: Intrinsics) -> tuple[str, tuple[float, ...]]:
+    """Our intrinsics -> COLMAP ``(model, params)``; principal point unchanged (same convention)."""
+    k1, k2, p1, p2, k3 = k.dist
+    base = (k.fx, k.fy, k.cx, k.cy)
+    if not k.has_distortion:
+        return "PINHOLE", base
+    if k3 == 0.0:
+        return "OPENCV", base + (k1, k2, p1, p2)
+    # FULL_OPENCV's rational radial term reduces to ours with k4 = k5 = k6 = 0
+    return "FULL_OPENCV", base + (k1, k2, p1, p2, k3, 0.0, 0.0, 0.0)
+
+
+def _intrinsics_from_colmap(model: str, w: int, h: int, p: Sequence[float], where: str) -> Intrinsics:
+    """COLMAP camera ``(model, width, height, params)`` -> :class:`Intrinsics` (perspective models only)."""
+    expected = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12}
+    if model not in expected:
+        raise ValueError(f"{where}: unsupported COLMAP camera model {model!r}; supported: {sorted(expected)}")
+    if len(p) != expected[model]:
+        raise ValueError(f"{where}: {model} needs {expected[model]} parameters, got {len(p)}")
+    if model == "SIMPLE_PINHOLE":
+        f, cx, cy = p
+        return Intrinsics(w, h, f, f, cx, cy)
+    if model == "PINHOLE":
+        return Intrinsics(w, h, *p)
+    if model == "SIMPLE_RADIAL":
+        f, cx, cy, k1 = p
+        return Intrinsics(w, h, f, f, cx, cy, (k1, 0.0, 0.0, 0.0, 0.0))
+    if model == "RADIAL":
+        f, cx, cy, k1, k2 = p
+        return Intrinsics(w, h, f, f, cx, cy, (k1, k2, 0.0, 0.0, 0.0))
+    fx, fy, cx, cy, k1, k2, p1, p2 = p[:8]
+    k3 = 0.0
+    if model == "FULL_OPENCV":
+        k3 = p[8]
+        if any(v != 0.0 for v in p[9:]):
+            raise ValueError(f"{where}: FULL_OPENCV with rational terms k4..k6 != 0 is not representable")
+    return Intrinsics(w, h, fx, fy, cx, cy, (k1, k2, p1, p2, k3))
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))  # shortest string that round-trips exactly
+
+
+def write_colmap_text(directory, cameras: Sequence[Camera], image_names: Sequence[str]) -> None:
+    """Write a COLMAP text model: ``cameras.txt``, ``images.txt`` and an empty ``points3D.txt``.
+
+    cameras: N :class:`Camera` (camera-to-world, OpenCV axes); image_names: N file names exactly
+    as COLMAP should see them (relative to its image folder, no whitespace). One COLMAP camera
+    per distinct intrinsics (ids 1.. in first-seen order): PINHOLE without distortion, OPENCV
+    (fx fy cx cy k1 k2 p1 p2) with distortion and k3 = 0, FULL_OPENCV (k4..k6 = 0) when k3 != 0.
+    Images get ids 1..N in the given order; poses are world-to-camera ``QW QX QY QZ TX TY TZ``.
+    """
+    cams = _check_cameras(cameras)
+    names = _check_file_names(image_names, len(cams), "COLMAP image names")
+    cam_ids: dict[tuple, int] = {}
+    cam_lines, img_lines = [], []
+    for img_id, (c, name) in enumerate(zip(cams, names), start=1):
+        k = c.intrinsics
+        model, params = _colmap_camera(k)
+        key = (model, k.width, k.height, params)
+        if key not in cam_ids:
+            cam_ids[key] = len(cam_ids) + 1
+            cam_lines.append(" ".join([str(cam_ids[key]), model, str(k.width), str(k.height)]
+                                      + [_fmt(v) for v in params]))
+        q, t = c2w_to_colmap(_rigid(c.cam_to_world, f"camera {c.name!r}"))
+        img_lines.append(" ".join([str(img_id)] + [_fmt(v) for v in (*q, *t)] + [str(cam_ids[key]), name]))
+        img_lines.append("")  # no 2D points
+    directory = Path(directory)
+    _write_text(directory / "cameras.txt",
+                "# Camera list with one line of data per camera:\n"
+                "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+                f"# Number of cameras: {len(cam_lines)}\n" + "\n".join(cam_lines) + "\n")
+    _write_text(directory / "points3D.txt",
+                "# 3D point list with one line of data per point:\n"
+                "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
+                "# Number of points: 0, mean track length: 0\n")
+    _write_text(directory / "images.txt",
+                "# Image list with two lines of data per image:\n"
+                "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
+                "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
+                f"# Number of images: {len(cams)}, mean observations per image: 0\n"
+                + "\n".join(img_lines) + "\n")
+
+
+def _data_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, text) of a COLMAP text file, comments removed, blank lines kept."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    return [(i + 1, ln.rstrip("\n\r")) for i, ln in enumerate(path.read_text().splitlines())
+            if not ln.startswith("#")]
+
+
+def read_colmap_text(directory) -> list[Camera]:
+    """Read a COLMAP text model's cameras and images (3D points are ignored).
+
+    Returns one :class:`Camera` per image, sorted by image id, named by the image name's stem,
+    with camera-to-world poses in OpenCV axes. Supported camera models: SIMPLE_PINHOLE,
+    PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV with k4 = k5 = k6 = 0.
+    """
+    directory = Path(directory)
+    intr: dict[int, Intrinsics] = {}
+    cam_file = directory / "cameras.txt"
+    for no, ln in _data_lines(cam_file):
+        tok = ln.split()
+        if not tok:
+            continue
+        where = f"{cam_file}:{no}"
+        try:
+            cid, model, w, h = int(tok[0]), tok[1], int(tok[2]), int(tok[3])
+            params = [_finite(v, "camera parameter") for v in tok[4:]]
+        except (IndexError, ValueError) as err:
+            raise ValueError(f"{where}: malformed camera line ({err})") from None
+        intr[cid] = _intrinsics_from_colmap(model, w, h, params, where)
+    img_file = directory / "images.txt"
+    lines = _data_lines(img_file)
+    entries = []
+    i = 0
+    while i < len(lines):
+        no, ln = lines[i]
+        tok = ln.split()
+        if not tok:  # tolerate stray blank lines between records
+            i += 1
+            continue
+        where = f"{img_file}:{no}"
+        try:
+            iid = int(tok[0])
+            q = np.array([_finite(v, "quaternion") for v in tok[1:5]])
+            t = np.array([_finite(v, "translation") for v in tok[5:8]])
+            cid, name = int(tok[8]), tok[9]
+        except (IndexError, ValueError) as err:
+            raise ValueError(f"{where}: malformed image line ({err})") from None
+        if q.shape != (4,) or t.shape != (3,) or np.linalg.norm(q) < 1e-12:
+            raise ValueError(f"{where}: malformed pose")
+        if cid not in intr:
+            raise ValueError(f"{where}: image {name!r} refers to unknown camera id {cid}")
+        entries.append((iid, Camera(intr[cid], colmap_to_c2w(q, t), _stem(name))))
+        i += 2  # skip the POINTS2D line
+    if not entries:
+        raise ValueError(f"{img_file}: no images")
+    entries.sort(key=lambda e: e[0])
+    return [c for _, c in entries]
+
+
+# --------------------------------------------------------------------------- transforms.json
+
+
+def _ngp_intrinsics(k: Intrinsics) -> dict:
+    """Intrinsics as transforms.json keys (principal point unchanged: nerfstudio samples +0.5)."""
+    k1, k2, p1, p2, k3 = k.dist
+    d = {"fl_x": float(k.fx), "fl_y": float(k.fy), "cx": float(k.cx), "cy": float(k.cy),
+         "w": int(k.width), "h": int(k.height), "k1": k1, "k2": k2, "p1": p1, "p2": p2}
+    if k3 != 0.0:
+        d["k3"] = k3  # nerfstudio reads k3 (radial r^6 term, as OpenCV's)
+    return d
+
+
+def write_transforms_json(path, cameras: Sequence[Camera], file_paths: Sequence[str]) -> None:
+    """Write a nerfstudio / instant-ngp ``transforms.json``.
+
+    cameras: N :class:`Camera`; file_paths: N image paths relative to the json's folder.
+    Each frame has ``file_path`` and ``transform_matrix`` (4x4 camera-to-world, OpenGL axes:
+    x right, y up, z backward; the world frame is ours, unchanged). Intrinsics
+    ``fl_x fl_y cx cy w h k1 k2 p1 p2`` (+ ``k3`` when non-zero) sit at the top level when every
+    camera shares them, else in every frame (nerfstudio reads either). ``camera_model`` is
+    ``"OPENCV"`` when any camera has distortion, else ``"PINHOLE"``.
+    """
+    cams = _check_cameras(cameras)
+    paths = _check_file_names(file_paths, len(cams), "transforms.json file paths")
+    shared = all(c.intrinsics == cams[0].intrinsics for c in cams)
+    doc: dict = {"camera_model": "OPENCV" if any(c.intrinsics.has_distortion for c in cams) else "PINHOLE"}
+    if shared:
+        doc.update(_ngp_intrinsics(cams[0].intrinsics))
+    frames = []
+    for c, p in zip(cams, paths):
+        f = {"file_path": p,
+             "transform_matrix": opencv_to_opengl(_rigid(c.cam_to_world, f"camera {c.name!r}")).tolist()}
+        if not shared:
+            f.update(_ngp_intrinsics(c.intrinsics))
+        frames.append(f)
+    doc["frames"] = frames
+    _write_json(path, doc)
+
+
+def read_transforms_json(path) -> list[Camera]:
+    """Read a ``transforms.json``: one :class:`Camera` per frame in file order, named by the
+    ``file_path`` stem, camera-to-world converted back to OpenCV axes.
+
+    Each intrinsic key is taken from the frame when present there, else from the top level
+    (nerfstudio's rule); ``k1 k2 k3 p1 p2`` default to 0.
+    """
+    doc = _read_json(path)
+    frames = doc.get("frames")
+    if not isinstance(frames, list) or not frames:
+        raise ValueError(f"{path}: 'frames' must be a non-empty list")
+    model = doc.get("camera_model", "OPENCV")
+    if model not in ("OPENCV", "PINHOLE", "SIMPLE_PINHOLE"):
+        raise ValueError(f"{path}: unsupported camera_model {model!r}")
+    cams = []
+    for i, f in enumerate(frames):
+        where = f"{path}: frame {i}"
+
+        def get(key, default=None):
+            v = f.get(key, doc.get(key, default))
+            if v is None:
+                raise ValueError(f"{where}: missing {key!r} (neither in the frame nor at the top level)")
+            return v
+
+        try:
+            fp = str(f["file_path"])
+            m = np.array(f["transform_matrix"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"{where}: missing or malformed field {err}") from None
+        k = Intrinsics(int(get("w")), int(get("h")), _finite(get("fl_x"), "fl_x"), _finite(get("fl_y"), "fl_y"),
+                       _finite(get("cx"), "cx"), _finite(get("cy"), "cy"),
+                       tuple(_finite(get(n, 0.0), n) for n in ("k1", "k2", "p1", "p2", "k3")))
+        cams.append(Camera(k, opengl_to_opencv(_rigid(m, where)), _stem(fp)))
+    return cams
+
+
+# --------------------------------------------------------------------------- file helpers
+
+
+def _write_text(path, text: str) -> None:
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text)
+
+
+def _write_json(path, doc: dict) -> None:
+    # allow_nan=False: a NaN would silently produce invalid JSON
+    _write_text(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
+
+
+def _read_json(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: invalid JSON ({err})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: expected a JSON object at the top level")
+    return doc
