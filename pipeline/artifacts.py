@@ -1,0 +1,135 @@
+"""The artifact layout (DESIGN.md), stage manifests and atomic stage folders.
+
+``pipeline`` is the only package that knows where files go::
+
+    artifacts/<scene>/capture/           images/ linear/ depth/ masks/ cameras.json
+                                         transforms_{train,test}.json colmap/ targets.json manifest.json
+    artifacts/<scene>/poses/<method>/    cameras.json transforms_*.json colmap/ metrics.json manifest.json
+    artifacts/<scene>/reference/         linear/ variance/ images/ manifest.json
+    artifacts/<scene>/slab/  artifacts/<scene>/nerf/<model>/  artifacts/<scene>/validate/
+
+A stage writes into a hidden sibling folder ``.<name>.partial-*`` and renames it into place only
+when complete, so an interrupted stage leaves nothing that looks finished.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from render.image_io import atomic_path
+
+__all__ = ["BadInput", "DEFAULT_ROOT", "stage_dir", "atomic_stage", "sha256_file", "Manifest",
+           "write_json", "read_json", "read_manifest", "MANIFEST"]
+
+DEFAULT_ROOT = Path("artifacts")
+MANIFEST = "manifest.json"
+
+
+class BadInput(ValueError):
+    """User input is wrong (missing file, malformed scene, failed reconstruction): exit code 2."""
+
+
+def stage_dir(scene_name: str, stage: str, root: Path = DEFAULT_ROOT) -> Path:
+    """Default folder of a stage for a scene, e.g. ``artifacts/turntable/capture``."""
+    return Path(root) / scene_name / stage
+
+
+def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_json(path: Path, data) -> None:
+    """Atomic, deterministic JSON (sorted keys, no NaN allowed)."""
+    text = json.dumps(data, indent=2, sort_keys=True, allow_nan=False)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text + "\n")
+
+
+def read_json(path: Path):
+    path = Path(path)
+    if not path.is_file():
+        raise BadInput(f"{path}: file not found")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise BadInput(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+
+
+@contextmanager
+def atomic_stage(final: Path):
+    """Yield a fresh temporary folder; on success replace ``final`` with it, else delete it."""
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    try:
+        yield tmp
+        if final.exists():
+            old = final.with_name(f".{final.name}.old-{os.getpid()}")
+            os.replace(final, old)
+            os.replace(tmp, final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@dataclass
+class Manifest:
+    """What a stage did: its params, inputs and outputs with content hashes, wall time, metrics.
+
+    Output paths are relative to the stage folder; input paths are as given.
+    """
+
+    stage: str
+    params: dict = field(default_factory=dict)
+    inputs: dict[str, str] = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)
+    started: float = field(default_factory=time.time)
+
+    def add_input(self, path: Path) -> None:
+        path = Path(path)
+        if path.is_dir():
+            for p in sorted(path.rglob("*")):
+                if p.is_file():
+                    self.inputs[str(p)] = sha256_file(p)
+        else:
+            self.inputs[str(path)] = sha256_file(path)
+
+    def write(self, folder: Path) -> dict:
+        """Hash every file in ``folder`` and write ``folder/manifest.json``; returns its content."""
+        folder = Path(folder)
+        outputs = {str(p.relative_to(folder)): sha256_file(p) for p in sorted(folder.rglob("*"))
+                   if p.is_file() and p.name != MANIFEST}
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            ver = version("lumigraph")
+        except PackageNotFoundError:
+            ver = "unknown"
+        data = {"stage": self.stage, "lumigraph": ver, "params": self.params, "inputs": self.inputs,
+                "outputs": outputs, "wall_time_s": round(time.time() - self.started, 3),
+                "metrics": self.metrics}
+        write_json(folder / MANIFEST, data)
+        return data
+
+
+def read_manifest(folder: Path) -> dict:
+    """Read a stage folder's manifest; BadInput if the folder is not a finished stage."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise BadInput(f"{folder}: no such folder")
+    if not (folder / MANIFEST).is_file():
+        raise BadInput(f"{folder}: no {MANIFEST} (not a finished stage folder)")
+    return read_json(folder / MANIFEST)

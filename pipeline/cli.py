@@ -1,0 +1,94 @@
+"""The ``lumigraph`` command line (DESIGN.md's CLI contract).
+
+Exit codes: 0 success, 2 bad input (one line on stderr naming the field or file), 1 a bug.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .artifacts import DEFAULT_ROOT, BadInput, stage_dir
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="lumigraph: capture, estimate poses, build light slabs and NeRFs, validate against a path tracer.")
+
+QUIET = typer.Option(False, "--quiet", "-q", help="no progress bar")
+
+
+def _load(scene: str):
+    from rig.build import load_scene
+    from rig.spec import resolve_scene_path
+
+    return load_scene(scene), resolve_scene_path(scene)
+
+
+@app.command()
+def capture(scene: str = typer.Argument(..., help="built-in scene name or path to a scene YAML"),
+            out: Optional[Path] = typer.Option(None, help="capture folder (default artifacts/<scene>/capture)"),
+            seed: Optional[int] = typer.Option(None, help="seed for sensor noise (default: the spec's)"),
+            root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+            quiet: bool = QUIET):
+    """Render a scene's train and test views with ground-truth cameras."""
+    from .stages.capture import run_capture
+
+    rig, path = _load(scene)
+    out = out or stage_dir(rig.scene.name, "capture", root)
+    m = run_capture(rig, path, out, seed, quiet)
+    typer.echo(f"capture: {m['metrics']['views']} views ({m['params']['renderer']}) in {m['wall_time_s']:.1f} s -> {out}")
+
+
+@app.command()
+def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
+            no_sheet: bool = typer.Option(False, "--no-sheet", help="skip the contact sheet")):
+    """Show what a stage folder holds: a table, and a contact sheet PNG of its previews."""
+    from .inspect import inspect_folder
+
+    inspect_folder(folder, sheet=not no_sheet)
+
+
+@app.command()
+def run(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML"),
+        root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+        seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
+        quiet: bool = QUIET):
+    """Every stage in order, as dvc.yaml wires them."""
+    from .inspect import inspect_folder
+    from .stages.capture import run_capture
+
+    rig, path = _load(scene)
+    cap = stage_dir(rig.scene.name, "capture", root)
+    run_capture(rig, path, cap, seed, quiet)
+    inspect_folder(cap)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: maps bad input to exit 2 with one line, lets bugs surface with exit 1."""
+    from rig.capture import CaptureError
+    from rig.spec import SpecError
+
+    try:
+        app(args=argv, standalone_mode=False)
+    except (BadInput, SpecError, CaptureError, FileNotFoundError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"lumigraph: error: {msg}", file=sys.stderr)
+        return 2
+    except typer.Exit as exc:
+        return exc.exit_code
+    except typer.Abort:
+        print("lumigraph: aborted", file=sys.stderr)
+        return 1
+    except Exception as exc:  # click's usage errors carry their own exit code (2)
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            return exc.exit_code
+        raise
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""``lumigraph inspect DIR``: what a stage folder holds, as a terminal table and a contact sheet."""
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+from rich.console import Console
+from rich.table import Table
+
+from .artifacts import MANIFEST, BadInput, read_manifest, sha256_file
+
+__all__ = ["inspect_folder", "contact_sheet", "CONTACT_SHEET"]
+
+CONTACT_SHEET = "contact_sheet.png"
+
+
+def contact_sheet(images: list[Path], out: Path, thumb: int = 160, columns: int = 8) -> Path:
+    """Tile PNG previews into one labelled sheet (row-major, names under each thumbnail)."""
+    if not images:
+        raise BadInput("no PNG images to put on a contact sheet")
+    rows = (len(images) + columns - 1) // columns
+    label_h = 14
+    sheet = Image.new("RGB", (columns * thumb, rows * (thumb + label_h)), (24, 24, 24))
+    draw = ImageDraw.Draw(sheet)
+    for i, path in enumerate(images):
+        im = Image.open(path).convert("RGB")
+        im.thumbnail((thumb, thumb))
+        x, y = (i % columns) * thumb, (i // columns) * (thumb + label_h)
+        sheet.paste(im, (x + (thumb - im.width) // 2, y + (thumb - im.height) // 2))
+        draw.text((x + 3, y + thumb), path.stem[:24], fill=(220, 220, 220))
+    tmp = out.with_name(f".{out.name}.partial")
+    sheet.save(tmp, format="PNG")
+    tmp.replace(out)
+    return out
+
+
+def _preview_images(folder: Path) -> list[Path]:
+    for sub in ("images", "renders", ""):
+        found = sorted(p for p in (folder / sub).glob("*.png") if p.name != CONTACT_SHEET) if (folder / sub).is_dir() else []
+        if found:
+            return found
+    return []
+
+
+def inspect_folder(folder: Path, console: Console | None = None, sheet: bool = True) -> dict:
+    """Print a summary table of a stage folder; check its files against the manifest; write the
+    contact sheet. Returns a summary dict (also what the tests look at)."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    console = console or Console()
+    outputs: dict[str, str] = manifest.get("outputs", {})
+    missing = [p for p in outputs if not (folder / p).is_file()]
+    changed = [p for p in outputs if p not in missing and sha256_file(folder / p) != outputs[p]]
+    kinds = Counter(str(Path(p).parent) if Path(p).parent != Path(".") else Path(p).suffix or p for p in outputs)
+
+    table = Table(title=f"{folder}  —  stage '{manifest.get('stage')}'", show_lines=False)
+    table.add_column("item", style="bold")
+    table.add_column("value")
+    for k, v in manifest.get("params", {}).items():
+        table.add_row(f"param {k}", str(v))
+    for k, v in sorted(kinds.items()):
+        table.add_row(f"files {k}", str(v))
+    for k, v in manifest.get("metrics", {}).items():
+        table.add_row(f"metric {k}", f"{v:.6g}" if isinstance(v, float) else str(v))
+    table.add_row("wall time", f"{manifest.get('wall_time_s', float('nan')):.2f} s")
+    table.add_row("inputs", str(len(manifest.get("inputs", {}))))
+    integrity = "ok" if not (missing or changed) else f"{len(missing)} missing, {len(changed)} changed"
+    table.add_row("integrity", integrity)
+    summary = {"stage": manifest.get("stage"), "files": dict(kinds), "missing": missing, "changed": changed,
+               "metrics": manifest.get("metrics", {})}
+    previews = _preview_images(folder)
+    if sheet and previews:
+        path = contact_sheet(previews, folder / CONTACT_SHEET)
+        table.add_row("contact sheet", str(path))
+        summary["contact_sheet"] = str(path)
+    console.print(table)
+    return summary

@@ -1,0 +1,34 @@
+"""Progress bars (rich) that ``--quiet`` silences; they draw on stderr so stdout stays clean."""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+__all__ = ["progress_bar", "console"]
+
+console = Console(stderr=True)
+
+
+class _Silent:
+    def add_task(self, *a, **k):
+        return 0
+
+    def advance(self, *a, **k):
+        pass
+
+    def update(self, *a, **k):
+        pass
+
+
+@contextmanager
+def progress_bar(quiet: bool = False):
+    """Yield an object with rich's ``add_task`` / ``advance`` / ``update`` API."""
+    if quiet:
+        yield _Silent()
+        return
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                  console=console, transient=False) as p:
+        yield p
