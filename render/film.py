@@ -1,0 +1,109 @@
+"""Per-pixel sample moments: the mean image and its variance image, and exact merging.
+
+A film keeps, per pixel, the sample count n, the sum of samples S1 and the sum of their squares
+S2 (float64). The mean is S1 / n and the variance *of the mean* (the squared standard error)
+is (S2 - S1^2 / n) / (n (n - 1)): every render carries its own error bars. Two films of
+disjoint sample ranges merge by adding moments, which is exactly the film of the union (up to
+float64 rounding of the sums).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Film", "RenderResult", "merge_results"]
+
+
+@dataclass
+class Film:
+    """Moments of a (height, width) RGB film. s1, s2: (H*W, 3) float64; n: (H*W,) int64."""
+
+    width: int
+    height: int
+    s1: np.ndarray = None
+    s2: np.ndarray = None
+    n: np.ndarray = None
+
+    def __post_init__(self):
+        p = self.width * self.height
+        if self.s1 is None:
+            self.s1 = np.zeros((p, 3))
+        if self.s2 is None:
+            self.s2 = np.zeros((p, 3))
+        if self.n is None:
+            self.n = np.zeros(p, np.int64)
+
+    def add(self, pixel: np.ndarray, values: np.ndarray) -> None:
+        """Accumulate samples: pixel (N,) int row-major indices, values (N, 3) finite radiance."""
+        p = self.width * self.height
+        for c in range(3):
+            self.s1[:, c] += np.bincount(pixel, weights=values[:, c], minlength=p)
+            self.s2[:, c] += np.bincount(pixel, weights=values[:, c] * values[:, c], minlength=p)
+        self.n += np.bincount(pixel, minlength=p)
+
+    def add_moments(self, s1: np.ndarray, s2: np.ndarray, n: np.ndarray) -> None:
+        """Accumulate precomputed per-pixel moments (same shapes as the film's)."""
+        self.s1 += s1
+        self.s2 += s2
+        self.n += n
+
+    def merged(self, other: "Film") -> "Film":
+        """A new film holding both films' samples."""
+        if (self.width, self.height) != (other.width, other.height):
+            raise ValueError("cannot merge films of different sizes")
+        return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n)
+
+    def mean(self) -> np.ndarray:
+        """(H, W, 3) float32 per-pixel mean (0 where a pixel has no samples)."""
+        n = np.maximum(self.n, 1)[:, None]
+        return (self.s1 / n).reshape(self.height, self.width, 3).astype(np.float32)
+
+    def variance(self) -> np.ndarray:
+        """(H, W, 3) float32 variance of the per-pixel mean (0 where fewer than 2 samples)."""
+        n = self.n.astype(np.float64)[:, None]
+        ok = n >= 2
+        nn = np.where(ok, n, 2.0)
+        var = (self.s2 - self.s1 * self.s1 / nn) / (nn * (nn - 1.0))
+        var = np.where(ok, np.maximum(var, 0.0), 0.0)
+        return var.reshape(self.height, self.width, 3).astype(np.float32)
+
+
+@dataclass
+class RenderResult:
+    """A render: mean (H, W, 3) float32 linear radiance, variance (H, W, 3) float32 variance of
+    that mean, spp, the half-open ``sample_range`` rendered, the raw ``film`` moments, the
+    ``integrator`` used and ``stats`` (time_s, paths, rays)."""
+
+    mean: np.ndarray
+    variance: np.ndarray
+    spp: int
+    sample_range: tuple[int, int]
+    film: Film
+    integrator: str
+    stats: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_film(cls, film: Film, sample_range, integrator: str, stats: dict) -> "RenderResult":
+        a, b = sample_range
+        return cls(film.mean(), film.variance(), int(b - a), (int(a), int(b)), film, integrator, dict(stats))
+
+    @property
+    def stderr(self) -> np.ndarray:
+        """(H, W, 3) float32 standard error of the mean."""
+        return np.sqrt(self.variance)
+
+
+def merge_results(a: RenderResult, b: RenderResult) -> RenderResult:
+    """Merge two renders of the same view over disjoint sample ranges (e.g. [0, 8) and [8, 16))."""
+    (a0, a1), (b0, b1) = a.sample_range, b.sample_range
+    if a0 < b1 and b0 < a1:
+        raise ValueError(f"sample ranges overlap: {a.sample_range} and {b.sample_range}")
+    if a.integrator != b.integrator:
+        raise ValueError(f"cannot merge renders of different integrators ({a.integrator}, {b.integrator})")
+    lo, hi = min(a0, b0), max(a1, b1)
+    film = a.film.merged(b.film)
+    stats = {k: a.stats.get(k, 0) + b.stats.get(k, 0) for k in set(a.stats) | set(b.stats)
+             if isinstance(a.stats.get(k, 0), (int, float)) and isinstance(b.stats.get(k, 0), (int, float))}
+    res = RenderResult(film.mean(), film.variance(), a.spp + b.spp, (lo, hi), film, a.integrator, stats)
+    return res
