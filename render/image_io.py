@@ -16,6 +16,9 @@ from PIL import Image
 
 from .color import to_srgb8
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
 __all__ = ["atomic_path", "write_exr", "read_exr", "write_png", "read_png", "write_preview"]
 
 
@@ -28,6 +31,7 @@ def atomic_path(path: str | os.PathLike):
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp creates 0600; finished files get the usual mode
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
