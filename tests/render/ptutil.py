@@ -1,0 +1,92 @@
+"""Helpers for the path tracer's tests: small scenes, probe cameras, image Z-tests."""
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy import stats
+
+from cornell_box import cornell_camera, cornell_scene, quads_mesh  # noqa: F401  (tests/render/cornell_box.py)
+from render.camera import Camera, Intrinsics
+from render.poses import look_at
+from render.scene import Emissive, Lambertian, Scene, SceneObject
+
+CORNELL_RES = 16
+CORNELL_REF_SPP = 2048
+CORNELL_EFFECTS_DIRECT = frozenset({"direct", "soft_shadows"})
+
+
+def quad(center, half_u, half_v, normal_sign: float = 1.0) -> trimesh.Trimesh:
+    """Axis-aligned rectangle in the plane z = center[2]; normal +z (or -z if normal_sign < 0)."""
+    cx, cy, cz = center
+    corners = [[cx - half_u, cy - half_v, cz], [cx + half_u, cy - half_v, cz],
+               [cx + half_u, cy + half_v, cz], [cx - half_u, cy + half_v, cz]]
+    m = quads_mesh([corners])
+    if np.sign(m.face_normals[0, 2]) != np.sign(normal_sign):
+        m.invert()
+    return m
+
+
+def disk(center, radius: float, segments: int, normal_sign: float = -1.0) -> trimesh.Trimesh:
+    """Regular ``segments``-gon of circumradius ``radius`` in the plane z = center[2] (triangle fan)."""
+    a = 2 * np.pi * np.arange(segments) / segments
+    ring = np.stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a), np.full(segments, center[2])], 1)
+    v = np.vstack([np.asarray(center, float)[None], ring])
+    f = np.stack([np.zeros(segments, int), 1 + np.arange(segments), 1 + (np.arange(segments) + 1) % segments], 1)
+    m = trimesh.Trimesh(v, f, process=False)
+    if np.sign(m.face_normals[0, 2]) != np.sign(normal_sign):
+        m.invert()
+    return m
+
+
+def receiver_box(albedo, half: float = 10.0, thickness: float = 0.1) -> SceneObject:
+    """Convex diffuse slab whose top face is the plane z = 0."""
+    box = trimesh.creation.box([2 * half, 2 * half, thickness])
+    box.apply_translation([0, 0, -thickness / 2])
+    return SceneObject("receiver", box, Lambertian(albedo))
+
+
+def probe_camera(target, eye, size: int = 4, fov_deg: float = 0.02, up=(0, 0, 1)) -> Camera:
+    """A tiny, very narrow camera whose image centre looks exactly at ``target``."""
+    c2w = look_at(np.asarray(eye, float), np.asarray(target, float), np.asarray(up, float))
+    return Camera(Intrinsics.from_fov(size, size, fov_deg), c2w, "probe")
+
+
+def image_mean_and_se(result) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) mean over all pixels and its standard error from the variance image."""
+    p = result.mean.shape[0] * result.mean.shape[1]
+    m = result.mean.reshape(-1, 3).astype(np.float64).mean(0)
+    se = np.sqrt(result.variance.reshape(-1, 3).astype(np.float64).sum(0)) / p
+    return m, se
+
+
+def compare_images(a, b, alpha: float = 0.01, pass_fraction: float = 0.9975):
+    """Two independent renders of the same view: per-pixel two-sample Z-tests at a Sidak-corrected
+    per-channel level (Mitsuba 3's render tests), and a global Z-test of the image means at ``alpha``.
+
+    Returns (fraction of pixel channels passing, largest per-channel global z, pixel threshold);
+    the images agree when fraction >= pass_fraction and the global z is below the two-sided
+    normal quantile at alpha Sidak-corrected over the 3 channels.
+    """
+    ma, mb = a.mean.astype(np.float64), b.mean.astype(np.float64)
+    va, vb = a.variance.astype(np.float64), b.variance.astype(np.float64)
+    n = ma.size
+    alpha_px = 1.0 - (1.0 - alpha) ** (1.0 / n)
+    thr = stats.norm.ppf(1.0 - alpha_px / 2)
+    diff = np.abs(ma - mb)
+    sd = np.sqrt(va + vb)
+    z = np.where(sd > 0, diff / np.maximum(sd, 1e-300), np.where(diff <= 1e-6 * (np.abs(ma) + 1e-12), 0.0, np.inf))
+    frac = float(np.mean(z <= thr))
+    p = n // 3
+    gsd = np.sqrt((va + vb).reshape(-1, 3).sum(0)) / p
+    gdiff = np.abs(ma.reshape(-1, 3).mean(0) - mb.reshape(-1, 3).mean(0))
+    gz = float(np.max(np.where(gsd > 0, gdiff / np.maximum(gsd, 1e-300), np.where(gdiff > 0, np.inf, 0.0))))
+    return frac, gz, thr
+
+
+def assert_images_agree(a, b, alpha: float = 0.01):
+    frac, gz, thr = compare_images(a, b, alpha)
+    zcrit = stats.norm.ppf(1 - (1 - (1 - alpha) ** (1 / 3)) / 2)
+    assert frac >= 0.9975, f"only {frac:.4f} of pixel channels pass the Z-test (threshold {thr:.2f})"
+    assert gz < zcrit, f"image means differ: global z = {gz:.2f} >= {zcrit:.2f} (alpha {alpha})"
+
+
