@@ -35,5 +35,5 @@ def cornell_path_reference(cornell):
 def cornell_direct_reference(cornell):
     """High-spp `direct` MIS render of the Cornell box (effects restricted to direct light)."""
     sc, ps, cam = cornell
-    return render(sc, cam, RenderSettings(integrator="direct", spp=4 * CORNELL_REF_SPP, seed=2000),
+    return render(sc, cam, RenderSettings(integrator="direct", spp=2 * CORNELL_REF_SPP, seed=2000),
                   effects=CORNELL_EFFECTS_DIRECT, prepared=ps)
