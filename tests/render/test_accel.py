@@ -3,6 +3,7 @@ splitting, and ray offsets at millimetre scale."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import trimesh
 
 from cornell_box import cornell_camera, cornell_scene
@@ -57,13 +58,16 @@ def test_degenerate_triangles_are_guarded():
     assert h.tri[0] == 0 and h.tri[1] == -1
 
 
-def test_offsets_prevent_self_intersection_at_millimetre_scale():
-    """Rays leaving Cornell-box surfaces (coordinates ~500 mm), including at grazing angles
-    (1e-4 rad), never hit the surface they leave."""
+@pytest.mark.parametrize("shift", [0.0, 1e5])
+def test_offsets_prevent_self_intersection_at_millimetre_scale(shift):
+    """Rays leaving Cornell-box surfaces (coordinates ~500 mm, or shifted 100 m off the origin),
+    including at grazing angles (1e-4 rad), never hit the surface they leave."""
     sc = cornell_scene()
+    for o in sc.objects:
+        o.mesh.apply_translation([shift, 0, 0])
     acc = Accel(sc, threads=2)
     g = acc.geometry
-    n = 200000
+    n = 1_000_000
     k = path_keys(0, np.arange(n), np.zeros(n, np.int64))
     valid_tris = np.nonzero(g.valid)[0]
     tri = valid_tris[(uniform(k, 0) * len(valid_tris)).astype(int)]
