@@ -1,0 +1,291 @@
+"""The ``poses`` stage: cameras estimated from a capture's images, scored against its ground truth.
+
+Layout (DESIGN.md)::
+
+    poses/<method>/cameras.json            estimated cameras (registered views), capture's splits
+    poses/<method>/transforms_{train,test}.json   file paths point at the capture's images
+    poses/<method>/colmap/                 COLMAP text model of the same cameras
+    poses/<method>/sparse/                 (colmap only) COLMAP's binary model with 3D points
+    poses/<method>/metrics.json            scores (see below)   poses/<method>/manifest.json
+
+Methods: ``gt`` (the capture's ground truth, the baseline), ``colmap`` (structure from motion,
+:mod:`recon.poses.colmap`, aligned to the ground-truth frame by a similarity on the camera
+centres), ``charuco`` (board poses, :mod:`recon.poses.charuco`; metric already, written as
+estimated and scored both without and with the alignment, the latter as ``aligned_*``).
+Every written camera is in the ground-truth world frame, so later stages use it as is.
+
+Failure (a method ran but its result is unusable: no model, too few views registered, no board
+ever visible, a folded turntable circle, a pose error above the gate). Both promises hold:
+
+* the stage folder is replaced, atomically, by one holding ONLY ``metrics.json`` with
+  ``"status": "failed"``, the ``reason`` and every figure measured before the failure. It has
+  no ``manifest.json`` and no cameras, so it never looks finished: ``read_manifest`` and every
+  later stage reject it ("not a finished stage folder");
+* :func:`run_poses` raises :class:`pipeline.artifacts.BadInput` whose one line names the
+  reason and the metrics file, so the CLI exits 2.
+
+Bad input (no capture folder, no ``cameras.json``, missing / unreadable / mixed-size images,
+no ``targets.json`` for ChArUco) raises BadInput before anything is written.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, estimate_charuco,
+                         estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
+from render.camera import Camera
+from render.camera_io import write_cameras_json, write_colmap_text, write_transforms_json, read_cameras_json
+
+from ..artifacts import BadInput, Manifest, atomic_stage, write_json
+from ..progress import progress_bar
+
+__all__ = ["METHODS", "QualityGates", "PosesConfig", "Capture", "load_capture", "estimate_poses", "run_poses"]
+
+METHODS = ("gt", "colmap", "charuco")
+
+
+@dataclass(frozen=True)
+class QualityGates:
+    """When an estimate counts as failed.
+
+    min_registered_fraction: registered views / all views below this fails.
+    max_rotation_error_deg: ground-truth gate on the largest rotation error (a fold or a broken
+        model shows as tens of degrees; an accurate one as hundredths).
+    max_azimuth_gap_deg: self-check (no ground truth) on the largest empty sector of camera
+        azimuths around the turntable axis; see :func:`recon.poses.turntable_self_check`.
+    """
+
+    min_registered_fraction: float = 0.9
+    max_rotation_error_deg: float = 5.0
+    max_azimuth_gap_deg: float = 90.0
+
+
+@dataclass(frozen=True)
+class PosesConfig:
+    colmap: ColmapConfig = field(default_factory=ColmapConfig)
+    charuco: CharucoConfig = field(default_factory=CharucoConfig)
+    gates: QualityGates = field(default_factory=QualityGates)
+
+
+@dataclass
+class Capture:
+    """A validated capture: ground-truth cameras and splits in file order, image paths by name,
+    and the calibration targets (empty dict when the capture has no targets.json)."""
+
+    folder: Path
+    cameras: list[Camera]
+    splits: list[str]
+    images: dict[str, Path]
+    targets: dict
+
+
+class PoseFailure(Exception):
+    """The method ran but its result is unusable; carries the metrics measured so far."""
+
+    def __init__(self, reason: str, metrics: dict):
+        super().__init__(reason)
+        self.reason, self.metrics = reason, metrics
+
+
+def load_capture(folder: Path, need_targets: bool = False) -> Capture:
+    """Read and check a capture folder; BadInput (one line naming the file) on any problem."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise BadInput(f"{folder}: no such capture folder")
+    cam_file = folder / "cameras.json"
+    if not cam_file.is_file():
+        raise BadInput(f"{cam_file}: no camera file in the capture")
+    try:
+        cameras, splits = read_cameras_json(cam_file)
+    except (ValueError, FileNotFoundError) as exc:
+        raise BadInput(str(exc).splitlines()[0]) from None
+    images, size = {}, None
+    for c in cameras:
+        p = folder / "images" / f"{c.name}.png"
+        if not p.is_file():
+            raise BadInput(f"{p}: image missing for view {c.name!r}")
+        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if img is None or img.dtype != np.uint8:
+            raise BadInput(f"{p}: unreadable image (not an 8-bit PNG)")
+        hw = img.shape[:2]
+        if size is None:
+            size, first = hw, p
+        elif hw != size:
+            raise BadInput(f"{p}: image is {hw[1]}x{hw[0]} but {first.name} is {size[1]}x{size[0]} (mixed image sizes)")
+        k = c.intrinsics
+        if (k.height, k.width) != hw:
+            raise BadInput(f"{p}: image is {hw[1]}x{hw[0]} but cameras.json says {k.width}x{k.height}")
+        images[c.name] = p
+    targets = {}
+    t_file = folder / "targets.json"
+    if t_file.is_file():
+        try:
+            targets = json.loads(t_file.read_text())
+        except json.JSONDecodeError as exc:
+            raise BadInput(f"{t_file}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+        if not isinstance(targets, dict):
+            raise BadInput(f"{t_file}: expected an object of boards")
+    elif need_targets:
+        raise BadInput(f"{t_file}: no calibration targets in the capture (needed by --method charuco)")
+    return Capture(folder, cameras, splits, images, targets)
+
+
+def _prefixed(prefix: str, d: dict) -> dict:
+    return {f"{prefix}{k}": v for k, v in d.items()}
+
+
+def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(),
+                   workdir: Path | None = None) -> tuple[list[Camera], dict, object]:
+    """Run one method on a loaded capture and score it.
+
+    Returns ``(cameras, metrics, reconstruction)``: registered cameras in the ground-truth
+    frame (camera-to-world, OpenCV axes; capture order), the flat metrics dict with
+    ``status = "ok"`` and, for COLMAP, the aligned ``pycolmap.Reconstruction`` (else None).
+    Raises :class:`PoseFailure` when the result fails a gate or the method finds nothing.
+    """
+    if method not in METHODS:
+        raise BadInput(f"--method: unknown method {method!r} (known: {', '.join(METHODS)})")
+    truth = {c.name: c for c in cap.cameras}
+    k_true = cap.cameras[0].intrinsics
+    metrics: dict = {"method": method, "views_total": len(cap.cameras)}
+    rec = None
+    t0 = time.perf_counter()
+    if method == "gt":
+        cams, extra = list(cap.cameras), {"reprojection_error_px": 0.0}
+    elif method == "colmap":
+        cfg = config.colmap
+        metrics.update(known_intrinsics=cfg.known_intrinsics, image_scale=cfg.image_scale,
+                       max_features=cfg.max_features)
+        with tempfile.TemporaryDirectory(prefix="lumigraph-colmap-") as tmp:
+            try:
+                res = estimate_colmap(cap.images, k_true, Path(workdir or tmp), cfg)
+            except ReconstructionError as exc:
+                metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
+                raise PoseFailure(str(exc), metrics) from None
+        cams, rec = res.cameras, res.reconstruction
+        extra = {"reprojection_error_px": res.reprojection_error_px, "points": int(len(res.points)),
+                 "models": res.num_models, "mean_track_length": res.mean_track_length}
+    else:
+        cfg = config.charuco
+        metrics.update(calibrate=cfg.calibrate)
+        imgs = {n: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for n, p in cap.images.items()}
+        try:
+            res = estimate_charuco(imgs, cap.targets, None if cfg.calibrate else k_true, cfg)
+        except BoardNotFound as exc:
+            metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
+            raise PoseFailure(str(exc), metrics) from None
+        except ValueError as exc:  # malformed board definition
+            raise BadInput(f"{cap.folder / 'targets.json'}: {exc}") from None
+        cams = res.cameras
+        extra = {"reprojection_error_px": res.reprojection_error_px, "board_not_visible": res.not_visible,
+                 "corners_min": int(min(res.corners.values())), "corners_mean": float(np.mean(list(res.corners.values())))}
+    metrics["estimate_time_s"] = round(time.perf_counter() - t0, 3)
+    names = {c.name for c in cams}
+    metrics.update(views_registered=len(cams), registered_fraction=len(cams) / len(truth),
+                   unregistered=[n for n in truth if n not in names], **extra)
+    gates = config.gates
+    if len(cams) < 3:
+        raise PoseFailure(f"only {len(cams)} of {len(truth)} views registered", metrics)
+    try:
+        if method == "charuco":
+            _, aligned, _ = score_cameras(cams, truth, align=True)
+            metrics.update(_prefixed("aligned_", aligned))
+            scored, m, sim = score_cameras(cams, truth, align=False)
+        else:
+            scored, m, sim = score_cameras(cams, truth, align=method != "gt")
+    except ValueError as exc:  # degenerate centres (e.g. all registered views at one pose)
+        raise PoseFailure(f"cannot align the estimate to the ground truth: {exc}", metrics) from None
+    metrics.update(m)
+    metrics.update(intrinsics_error(scored[0], truth[scored[0].name]))
+    check = turntable_self_check(scored, gates.max_azimuth_gap_deg)
+    metrics.update(self_check_folded=check["folded"], self_check_reason=check["reason"],
+                   max_azimuth_gap_deg=check["max_azimuth_gap_deg"], duplicate_pairs=check["duplicate_pairs"])
+    reasons = []
+    if metrics["registered_fraction"] < gates.min_registered_fraction:
+        reasons.append(f"too few views registered: {len(cams)} of {len(truth)} (gate {gates.min_registered_fraction:.0%})")
+    if check["folded"]:
+        reasons.append(f"folded turntable circle (self-check): {check['reason']}")
+    if metrics["rotation_error_deg_max"] > gates.max_rotation_error_deg:
+        reasons.append(f"rotation error up to {metrics['rotation_error_deg_max']:.1f} deg against ground truth "
+                       f"(gate {gates.max_rotation_error_deg:g} deg, view {metrics['worst_view']}): "
+                       "folded or broken reconstruction")
+    if reasons:
+        raise PoseFailure("; ".join(reasons), metrics)
+    if rec is not None:
+        import pycolmap
+
+        rec.transform(pycolmap.Sim3d(sim.scale, pycolmap.Rotation3d(sim.R), sim.t))
+    metrics["status"] = "ok"
+    return scored, metrics, rec
+
+
+def _write_cameras(folder: Path, cap: Capture, cams: list[Camera], out_final: Path) -> None:
+    split_of = dict(zip((c.name for c in cap.cameras), cap.splits))
+    write_cameras_json(folder / "cameras.json", cams, [split_of[c.name] for c in cams])
+    write_colmap_text(folder / "colmap", cams, [f"{c.name}.png" for c in cams])
+    for split in sorted(set(cap.splits)):
+        members = [c for c in cams if split_of[c.name] == split]
+        if members:
+            rel = [os.path.relpath(cap.images[c.name].resolve(), out_final.resolve()) for c in members]
+            write_transforms_json(folder / f"transforms_{split}.json", members, rel)
+
+
+def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = PosesConfig(),
+              quiet: bool = False) -> dict:
+    """Estimate poses of ``capture_dir`` with ``method`` into ``out`` atomically; returns the manifest.
+
+    On failure writes the failure folder described in the module docstring and raises BadInput.
+    """
+    if method not in METHODS:
+        raise BadInput(f"--method: unknown method {method!r} (known: {', '.join(METHODS)})")
+    out = Path(out)
+    cap = load_capture(capture_dir, need_targets=method == "charuco")
+    params = {"method": method, "capture": str(capture_dir), **({"colmap": asdict(config.colmap)} if method == "colmap"
+              else {"charuco": asdict(config.charuco)} if method == "charuco" else {}), "gates": asdict(config.gates)}
+    manifest = Manifest("poses", params=params)
+    manifest.add_input(cap.folder / "cameras.json")
+    manifest.add_input(cap.folder / "images")
+    if method == "charuco":
+        manifest.add_input(cap.folder / "targets.json")
+    with progress_bar(quiet) as bar:
+        task = bar.add_task(f"poses {method}", total=1, info=f"{len(cap.cameras)} views")
+        try:
+            cams, metrics, rec = estimate_poses(cap, method, config)
+        except PoseFailure as fail:
+            metrics = {**fail.metrics, "status": "failed", "reason": fail.reason,
+                       "wall_time_s": round(time.time() - manifest.started, 3)}
+            with atomic_stage(out) as tmp:
+                write_json(tmp / "metrics.json", metrics)
+            raise BadInput(f"poses {method}: {fail.reason} (see {out / 'metrics.json'})") from None
+        bar.advance(task)
+    metrics["wall_time_s"] = round(time.time() - manifest.started, 3)
+    with atomic_stage(out) as tmp:
+        _write_cameras(tmp, cap, cams, out)
+        if rec is not None:
+            (tmp / "sparse").mkdir()
+            rec.write(str(tmp / "sparse"))
+        write_json(tmp / "metrics.json", metrics)
+        manifest.metrics = {k: v for k, v in metrics.items() if isinstance(v, (int, float, str, bool))}
+        result = manifest.write(tmp)
+    return result
+
+
+if __name__ == "__main__":  # temporary entry for testing until the CLI verb is wired
+    import sys
+
+    from ..cli import main as _cli_main  # noqa: F401  (keeps the import graph the CLI's)
+
+    try:
+        m = run_poses(Path(sys.argv[1]), sys.argv[2], Path(sys.argv[3]))
+        print(json.dumps(m["metrics"], indent=1))
+    except BadInput as exc:
+        print(f"lumigraph: error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,13 @@
+"""Camera poses from images: COLMAP structure from motion, ChArUco boards, and their scoring
+against ground truth (Umeyama similarity alignment, rotation / centre / intrinsics errors,
+turntable self-check). Conventions: camera-to-world 4x4 float64, OpenCV axes, pixel centres at
++0.5 (see :mod:`render.camera`)."""
+from .align import (Similarity, apply_similarity, intrinsics_error, rotation_angles_deg, scene_scale,
+                    score_cameras, turntable_self_check, umeyama)
+from .charuco import BoardNotFound, CharucoConfig, CharucoResult, detect_board, estimate_charuco, make_board
+from .colmap import ColmapConfig, ColmapResult, ReconstructionError, estimate_colmap
+
+__all__ = ["Similarity", "umeyama", "apply_similarity", "rotation_angles_deg", "scene_scale", "score_cameras",
+           "intrinsics_error", "turntable_self_check", "BoardNotFound", "CharucoConfig", "CharucoResult",
+           "detect_board", "estimate_charuco", "make_board", "ColmapConfig", "ColmapResult",
+           "ReconstructionError", "estimate_colmap"]

@@ -1,0 +1,196 @@
+"""Similarity alignment (Umeyama) and scoring of estimated cameras against ground truth.
+
+Conventions: poses are camera-to-world (4, 4) float64 in OpenCV axes (x right, y down,
+z forward); cameras pair up by ``Camera.name``. A similarity ``(s, R, t)`` maps a point
+``x`` of the estimate's frame to ``s R x + t`` in the ground-truth frame; applied to a camera it
+maps the centre the same way and left-multiplies the camera-to-world rotation by ``R``.
+
+The scene scale that camera-centre errors are divided by is the median distance of the
+ground-truth camera centres from their centroid (the orbit radius on a turntable), so a
+relative error of 0.01 is 1 % of the orbit.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from render.camera import Camera
+
+__all__ = ["Similarity", "umeyama", "apply_similarity", "rotation_angles_deg", "scene_scale",
+           "score_cameras", "intrinsics_error", "turntable_self_check"]
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``x -> scale * R @ x + t``: scale float > 0, R (3, 3) float64 rotation, t (3,) float64."""
+
+    scale: float
+    R: np.ndarray
+    t: np.ndarray
+
+    @classmethod
+    def identity(cls) -> "Similarity":
+        return cls(1.0, np.eye(3), np.zeros(3))
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 points -> (N, 3) float64 transformed points."""
+        return self.scale * np.asarray(points, dtype=np.float64) @ self.R.T + self.t
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Similarity:
+    """Least-squares similarity taking ``src`` onto ``dst`` (Umeyama 1991, eqs. 40-42).
+
+    src, dst: (N, 3) float64 corresponding points, N >= 3 and not all collinear.
+    Returns the :class:`Similarity` minimising sum |dst - (s R src + t)|^2 (s = 1 when
+    ``with_scale`` is False). Raises ValueError on degenerate input.
+    """
+    src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise ValueError(f"umeyama: need two (N, 3) arrays of the same shape, got {src.shape} and {dst.shape}")
+    if len(src) < 3 or not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
+        raise ValueError("umeyama: need at least 3 finite point pairs")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    var_s = np.mean(np.sum(xs * xs, axis=1))
+    if var_s < 1e-24:
+        raise ValueError("umeyama: source points coincide")
+    cov = xd.T @ xs / len(src)
+    U, D, Vt = np.linalg.svd(cov)
+    if np.linalg.matrix_rank(cov, tol=1e-12 * max(D[0], 1e-300)) < 2:
+        raise ValueError("umeyama: points are collinear, the rotation is undetermined")
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(D) @ S) / var_s) if with_scale else 1.0
+    return Similarity(s, R, mu_d - s * R @ mu_s)
+
+
+def apply_similarity(cameras: Sequence[Camera], sim: Similarity) -> list[Camera]:
+    """Move cameras by ``sim``: centre -> s R c + t, camera-to-world rotation -> R @ R_c2w."""
+    out = []
+    for c in cameras:
+        m = np.eye(4)
+        m[:3, :3] = sim.R @ c.cam_to_world[:3, :3]
+        m[:3, 3] = sim.apply(c.cam_to_world[None, :3, 3])[0]
+        out.append(replace(c, cam_to_world=m))
+    return out
+
+
+def rotation_angles_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Geodesic angle between rotations: (N, 3, 3) x (N, 3, 3) -> (N,) float64 degrees.
+
+    Uses atan2(|skew part|, trace part), accurate for tiny angles (arccos of the trace is not).
+    """
+    D = np.einsum("nji,njk->nik", np.asarray(R_a, float), np.asarray(R_b, float))  # R_a^T R_b
+    cos = (np.trace(D, axis1=1, axis2=2) - 1.0) / 2.0
+    sin = 0.5 * np.linalg.norm(np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0],
+                                         D[:, 1, 0] - D[:, 0, 1]], axis=1), axis=1)
+    return np.degrees(np.arctan2(sin, cos))
+
+
+def scene_scale(truth: Sequence[Camera]) -> float:
+    """Median distance of the ground-truth camera centres from their centroid (> 0)."""
+    c = np.array([t.center for t in truth])
+    d = float(np.median(np.linalg.norm(c - c.mean(0), axis=1)))
+    if not d > 0:
+        raise ValueError("scene_scale: all ground-truth cameras share one centre")
+    return d
+
+
+def intrinsics_error(est: Camera, truth: Camera) -> dict:
+    """Relative focal error, principal-point error (px) and largest distortion difference."""
+    a, b = est.intrinsics, truth.intrinsics
+    return {"focal_rel": float(max(abs(a.fx - b.fx) / b.fx, abs(a.fy - b.fy) / b.fy)),
+            "principal_point_px": float(np.hypot(a.cx - b.cx, a.cy - b.cy)),
+            "distortion_abs_max": float(np.max(np.abs(np.subtract(a.dist, b.dist))))}
+
+
+def _pair(estimated: Sequence[Camera], truth: Mapping[str, Camera]) -> tuple[list[Camera], list[Camera]]:
+    missing = [c.name for c in estimated if c.name not in truth]
+    if missing:
+        raise ValueError(f"estimated views without ground truth: {missing[:5]}")
+    return list(estimated), [truth[c.name] for c in estimated]
+
+
+def score_cameras(estimated: Sequence[Camera], truth: Mapping[str, Camera], align: bool = True,
+                  ) -> tuple[list[Camera], dict, Similarity]:
+    """Score estimated cameras against ground truth, optionally after a similarity alignment.
+
+    estimated: registered cameras (any subset of ``truth``'s names); truth: name -> Camera.
+    With ``align`` the estimate is first moved by the Umeyama similarity of its centres onto the
+    ground truth's (needs >= 3 non-collinear centres). Returns ``(cameras, metrics, similarity)``:
+    the (aligned) cameras, the similarity applied (identity without ``align``) and a dict of rotation error in degrees (mean, median, max), camera-centre
+    error relative to :func:`scene_scale` (mean, max), the alignment's scale, the registered
+    count and the worst view's name. All values are finite floats.
+    """
+    est, gt = _pair(estimated, truth)
+    if not est:
+        raise ValueError("no estimated cameras to score")
+    sim = Similarity.identity()
+    if align:
+        sim = umeyama(np.array([c.center for c in est]), np.array([c.center for c in gt]))
+        est = apply_similarity(est, sim)
+    rot = rotation_angles_deg(np.array([c.cam_to_world[:3, :3] for c in gt]),
+                              np.array([c.cam_to_world[:3, :3] for c in est]))
+    scale = scene_scale(list(truth.values()))
+    cen = np.linalg.norm(np.array([c.center for c in est]) - np.array([c.center for c in gt]), axis=1) / scale
+    worst = int(np.argmax(rot))
+    metrics = {"rotation_error_deg_mean": float(rot.mean()), "rotation_error_deg_median": float(np.median(rot)),
+               "rotation_error_deg_max": float(rot.max()), "center_error_rel_mean": float(cen.mean()),
+               "center_error_rel_max": float(cen.max()), "alignment_scale": float(sim.scale),
+               "scene_scale": scale, "worst_view": est[worst].name}
+    return est, metrics, sim
+
+
+def turntable_self_check(cameras: Sequence[Camera], max_gap_deg: float = 90.0,
+                         duplicate_rel: float = 0.05) -> dict:
+    """Detect a folded turntable circle from the estimated cameras alone (no ground truth).
+
+    A turntable capture is an orbit: the cameras look at the axis from all around it. The axis
+    direction is the mean of the cameras' up vectors (-y column of camera-to-world), its position
+    the least-squares point nearest every optical axis. Two symptoms of a circle folded by
+    repeated texture are reported:
+
+    * ``max_azimuth_gap_deg``: the largest empty sector of camera azimuths around the axis; a
+      full turn leaves gaps of a few view steps, a fold leaves most of the circle empty.
+    * ``duplicate_pairs``: pairs of views whose centres lie closer than ``duplicate_rel`` times
+      the orbit radius and whose orientations differ by less than 1 degree (identical-looking
+      views from different turntable angles stacked onto one pose).
+
+    cameras: (N >= 3) cameras, camera-to-world OpenCV axes. Returns a dict with those two
+    figures, ``folded`` (bool) and ``reason`` (str, empty when not folded).
+    """
+    cams = list(cameras)
+    if len(cams) < 3:
+        return {"folded": False, "reason": "", "max_azimuth_gap_deg": 0.0, "duplicate_pairs": 0}
+    R = np.array([c.cam_to_world[:3, :3] for c in cams])
+    C = np.array([c.center for c in cams])
+    up = -R[:, :, 1].mean(0)
+    up /= max(np.linalg.norm(up), 1e-12)
+    d = R[:, :, 2]
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # projectors orthogonal to each optical axis
+    A, b = P.sum(0), np.einsum("nij,nj->i", P, C)
+    p0 = np.linalg.lstsq(A, b, rcond=None)[0]
+    rel = C - p0
+    rel -= np.outer(rel @ up, up)
+    e1 = rel[np.argmax(np.linalg.norm(rel, axis=1))]
+    e1 /= max(np.linalg.norm(e1), 1e-12)
+    e2 = np.cross(up, e1)
+    az = np.sort(np.degrees(np.arctan2(rel @ e2, rel @ e1)) % 360.0)
+    gaps = np.diff(np.concatenate([az, az[:1] + 360.0]))
+    max_gap = float(gaps.max())
+    radius = float(np.median(np.linalg.norm(rel, axis=1)))
+    dist = np.linalg.norm(C[:, None] - C[None], axis=2)
+    ang = rotation_angles_deg(np.repeat(R, len(R), 0), np.tile(R, (len(R), 1, 1))).reshape(len(R), len(R))
+    iu = np.triu_indices(len(R), 1)
+    dup = int(np.sum((dist[iu] < duplicate_rel * max(radius, 1e-12)) & (ang[iu] < 1.0)))
+    reasons = []
+    if max_gap > max_gap_deg:
+        reasons.append(f"camera azimuths leave a {max_gap:.0f} degree sector empty (limit {max_gap_deg:.0f})")
+    if dup:
+        reasons.append(f"{dup} pairs of views share one pose")
+    return {"folded": bool(reasons), "reason": "; ".join(reasons), "max_azimuth_gap_deg": max_gap,
+            "duplicate_pairs": dup}

@@ -1,0 +1,222 @@
+"""Camera poses from ChArUco calibration boards (OpenCV 5 ``cv2.aruco``).
+
+A target is the dict a capture's ``targets.json`` holds per board::
+
+    {"board": {"squares": [cols, rows], "square_length": m, "marker_length": m,
+               "dictionary": "DICT_5X5_100", ...},
+     "board_to_world": 4x4 rows}
+
+in OpenCV's board frame: origin at the board image's top-left corner, x right, y down the
+image, z = x cross y (into the board). Each view's detected chessboard corners are matched to
+their board coordinates, moved to the world by ``board_to_world`` and fed to ``cv2.solvePnP``
+(all boards of a view in one solve), so poses come out directly in the world frame (metric).
+Intrinsics are known or come from ``cv2.calibrateCamera`` over every view that sees a board.
+
+OpenCV puts pixel centres at integer coordinates, we at +0.5: detected corners are in
+OpenCV's convention and the calibration crosses the boundary through
+:attr:`Intrinsics.K_opencv` (and +0.5 back), nowhere else.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from render.camera import Camera, Intrinsics
+from render.poses import invert_rigid
+
+__all__ = ["CharucoConfig", "CharucoResult", "BoardNotFound", "make_board", "detect_board",
+           "calibrate_intrinsics", "estimate_charuco"]
+
+
+class BoardNotFound(ValueError):
+    """No view shows enough of any calibration board (one line: which)."""
+
+
+@dataclass(frozen=True)
+class CharucoConfig:
+    """calibrate: estimate intrinsics with ``cv2.calibrateCamera`` (else use the known ones).
+    distortion: with ``calibrate``, also estimate ``k1 k2 p1 p2`` (k3 stays 0).
+    min_corners: a view with fewer matched corners (over all boards) counts as not seeing a board.
+    outlier_px: after a first solve, corners whose residual exceeds this are dropped and the pose
+    re-solved once (occluded or misdetected corners)."""
+
+    calibrate: bool = False
+    distortion: bool = True
+    min_corners: int = 8
+    outlier_px: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.min_corners < 6:
+            raise ValueError(f"min_corners must be >= 6 (a pose needs them), got {self.min_corners}")
+        if not self.outlier_px > 0:
+            raise ValueError(f"outlier_px must be positive, got {self.outlier_px}")
+
+
+@dataclass
+class CharucoResult:
+    """cameras: one per view that sees a board (camera-to-world, OpenCV axes, world frame),
+    in input order; not_visible: names of views without a usable board; corners: name -> number
+    of corners used; reprojection_error_px: mean corner residual over all used corners;
+    intrinsics: the calibration used (known or estimated, +0.5 convention)."""
+
+    cameras: list[Camera]
+    not_visible: list[str]
+    corners: dict[str, int]
+    reprojection_error_px: float
+    intrinsics: Intrinsics
+
+
+def make_board(board: Mapping) -> "cv2.aruco.CharucoBoard":
+    """A ``targets.json`` board dict -> ``cv2.aruco.CharucoBoard`` (lengths in scene units)."""
+    try:
+        cols, rows = (int(v) for v in board["squares"])
+        square, marker = float(board["square_length"]), float(board["marker_length"])
+        name = str(board.get("dictionary", "DICT_5X5_100"))
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"board definition: missing or malformed field {err}") from None
+    if not hasattr(cv2.aruco, name) or not name.startswith("DICT_"):
+        raise ValueError(f"board definition: unknown ArUco dictionary {name!r}")
+    if not (cols >= 3 and rows >= 3 and 0 < marker < square):
+        raise ValueError("board definition: need >= 3 x 3 squares and 0 < marker_length < square_length")
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    return cv2.aruco.CharucoBoard((cols, rows), square, marker, dictionary)
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"expected an 8-bit image, got {img.dtype}")
+    if img.ndim == 3:
+        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY if img.shape[2] == 3 else cv2.COLOR_RGBA2GRAY)
+    return img
+
+
+def detect_board(image: np.ndarray, board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Detect one ChArUco board.
+
+    image: (H, W) or (H, W, 3) uint8 (RGB). Returns ``(object_points, image_points, ids)``:
+    (N, 3) float64 board-frame corners, (N, 2) float64 pixel positions in OpenCV's convention
+    (pixel centres at integers), (N,) int corner ids. N = 0 when the board is not found.
+    """
+    detector = cv2.aruco.CharucoDetector(board)
+    corners, ids, _, _ = detector.detectBoard(_gray(image))
+    if ids is None or len(ids) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, dtype=int)
+    obj, img = board.matchImagePoints(corners, ids)
+    return (np.asarray(obj, dtype=np.float64).reshape(-1, 3), np.asarray(img, dtype=np.float64).reshape(-1, 2),
+            np.asarray(ids, dtype=int).ravel())
+
+
+def calibrate_intrinsics(views: list[tuple[np.ndarray, np.ndarray]], width: int, height: int,
+                         distortion: bool = True) -> tuple[Intrinsics, float]:
+    """``cv2.calibrateCamera`` over planar board observations.
+
+    views: list of (object_points (N, 3) board frame with z = 0, image_points (N, 2) OpenCV
+    convention); at least 3. Returns (intrinsics in the +0.5 convention, RMS residual px).
+    """
+    if len(views) < 3:
+        raise BoardNotFound(f"calibration needs a board in at least 3 views, found it in {len(views)}")
+    obj = [v[0].astype(np.float32).reshape(-1, 1, 3) for v in views]
+    img = [v[1].astype(np.float32).reshape(-1, 1, 2) for v in views]
+    flags = cv2.CALIB_FIX_K3
+    if not distortion:
+        flags |= cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_ZERO_TANGENT_DIST
+    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (width, height), None, None, flags=flags)
+    d = np.asarray(dist, dtype=np.float64).ravel()
+    d = np.concatenate([d, np.zeros(5)])[:5]
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(d)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise BoardNotFound("cv2.calibrateCamera diverged (too few or degenerate board views)")
+    k = Intrinsics(width, height, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5,
+                   tuple(float(v) for v in d))
+    return k, float(rms)
+
+
+def _solve_pose(obj_w: np.ndarray, img: np.ndarray, k: Intrinsics, outlier_px: float,
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """World-to-camera (4, 4) from (N, 3) world points and (N, 2) OpenCV pixels; also the
+    (M,) residuals of the M inlier corners used. None when the solve fails."""
+    K, dist = k.K_opencv, np.asarray(k.dist, dtype=np.float64)
+    keep = np.ones(len(obj_w), dtype=bool)
+    for _ in range(2):
+        o, p = obj_w[keep].reshape(-1, 1, 3), img[keep].reshape(-1, 1, 2)
+        ok, rvec, tvec = cv2.solvePnP(o, p, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            return None
+        rvec, tvec = cv2.solvePnPRefineLM(o, p, K, dist, rvec, tvec)
+        proj, _ = cv2.projectPoints(obj_w.reshape(-1, 1, 3), rvec, tvec, K, dist)
+        res = np.linalg.norm(proj.reshape(-1, 2) - img, axis=1)
+        new_keep = res <= outlier_px
+        if new_keep.sum() < 6 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    w2c = np.eye(4)
+    w2c[:3, :3] = cv2.Rodrigues(rvec)[0]
+    w2c[:3, 3] = np.asarray(tvec, dtype=np.float64).ravel()
+    if not np.all(np.isfinite(w2c)):
+        return None
+    return w2c, res[keep]
+
+
+def estimate_charuco(images: Mapping[str, np.ndarray], targets: Mapping[str, Mapping], intrinsics: Intrinsics | None,
+                     config: CharucoConfig = CharucoConfig()) -> CharucoResult:
+    """Per-view camera poses (and optionally intrinsics) from the boards in ``targets``.
+
+    images: name -> (H, W) or (H, W, 3) uint8 RGB, all one size. targets: board name ->
+    {"board": dict, "board_to_world": (4, 4)} as in a capture's ``targets.json``.
+    intrinsics: known calibration (+0.5 convention); required unless ``config.calibrate``.
+    Views where no board yields ``config.min_corners`` corners are listed in ``not_visible``.
+    Raises :class:`BoardNotFound` when no view sees a board, ValueError on a malformed target.
+    """
+    if not targets:
+        raise BoardNotFound("the capture has no calibration target (targets.json is empty)")
+    if intrinsics is None and not config.calibrate:
+        raise ValueError("known-intrinsics ChArUco needs the intrinsics")
+    boards = []
+    for name, t in targets.items():
+        try:
+            m = np.asarray(t["board_to_world"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"target {name!r}: missing or malformed board_to_world") from None
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise ValueError(f"target {name!r}: board_to_world must be a finite 4x4 matrix")
+        boards.append((name, make_board(t.get("board", {})), m))
+    names = list(images)
+    h, w = _gray(images[names[0]]).shape
+    detections: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for n in names:
+        found = []
+        for _, board, b2w in boards:
+            obj, img, _ = detect_board(images[n], board)
+            if len(obj):
+                found.append((obj, img, b2w))
+        if sum(len(f[0]) for f in found) >= config.min_corners:
+            detections[n] = found
+    not_visible = [n for n in names if n not in detections]
+    if not detections:
+        raise BoardNotFound(f"no calibration board detected in any of {len(names)} views")
+    if config.calibrate:
+        planar = [max(found, key=lambda f: len(f[0]))[:2] for found in detections.values()]
+        intrinsics, _ = calibrate_intrinsics([p for p in planar if len(p[0]) >= config.min_corners], w, h,
+                                             config.distortion)
+    cameras, corners, residuals = [], {}, []
+    for n in names:
+        if n not in detections:
+            continue
+        obj_w = np.concatenate([f[0] @ f[2][:3, :3].T + f[2][:3, 3] for f in detections[n]])
+        img = np.concatenate([f[1] for f in detections[n]])
+        solved = _solve_pose(obj_w, img, intrinsics, config.outlier_px)
+        if solved is None:
+            not_visible.append(n)
+            continue
+        w2c, res = solved
+        cameras.append(Camera(intrinsics, invert_rigid(w2c), n))
+        corners[n] = int(len(res))
+        residuals.append(res)
+    if not cameras:
+        raise BoardNotFound(f"no view gave a board pose ({len(names)} views)")
+    order = {n: i for i, n in enumerate(names)}
+    not_visible.sort(key=order.get)
+    return CharucoResult(cameras, not_visible, corners, float(np.concatenate(residuals).mean()), intrinsics)

@@ -1,0 +1,232 @@
+"""Structure from motion with COLMAP (pycolmap): SIFT features, matching, incremental mapping, CPU.
+
+Two modes (:class:`ColmapConfig.known_intrinsics`):
+
+* known intrinsics: one PINHOLE camera with the given ``fx fy cx cy``; bundle adjustment keeps
+  focal length and principal point fixed, only poses and points move;
+* self-calibration: one OPENCV camera (``fx fy cx cy k1 k2 p1 p2``) started from COLMAP's
+  default focal guess (1.2 x the larger image side) and refined with the distortion; the
+  principal point stays at the image centre unless ``refine_principal_point``.
+
+COLMAP and we put pixel centres at +0.5, so intrinsics pass to and from COLMAP unchanged.
+Images can be resized by ``image_scale`` first (intrinsics scaled with them); the returned
+cameras always have the input resolution's intrinsics. Poses come back in COLMAP's arbitrary
+similarity frame: align them with :func:`recon.poses.align.umeyama` before comparing.
+"""
+from __future__ import annotations
+
+import shutil
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from render.camera import Camera, Intrinsics
+
+__all__ = ["ColmapConfig", "ColmapResult", "ReconstructionError", "estimate_colmap"]
+
+
+class ReconstructionError(ValueError):
+    """Structure from motion produced no usable model (one line: what failed)."""
+
+
+@dataclass(frozen=True)
+class ColmapConfig:
+    """Options that matter for accuracy and time; the defaults give the figures in the report.
+
+    known_intrinsics: PINHOLE with fixed calibration (True) or self-calibrated OPENCV (False).
+    image_scale: resize factor applied before feature extraction (1 = capture resolution).
+    max_features: SIFT features per image.
+    matcher: ``exhaustive`` (every pair), ``sequential`` (neighbours in name order, with loop
+        detection off: turntable views are ordered), or ``auto`` (exhaustive up to
+        ``exhaustive_max_images`` images).
+    sequential_overlap: neighbours matched per image by the sequential matcher.
+    final_ba_iterations: iterations of one extra global bundle adjustment with tight tolerances
+        after mapping (0 skips it).
+    seed: COLMAP's RANSAC / mapper seed; num_threads: -1 = all cores.
+    """
+
+    known_intrinsics: bool = True
+    image_scale: float = 1.0
+    max_features: int = 8192
+    matcher: Literal["auto", "exhaustive", "sequential"] = "auto"
+    exhaustive_max_images: int = 150
+    sequential_overlap: int = 12
+    refine_principal_point: bool = False
+    final_ba_iterations: int = 100
+    seed: int = 0
+    num_threads: int = -1
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.image_scale <= 4.0:
+            raise ValueError(f"image_scale must be in [0.05, 4], got {self.image_scale}")
+        if self.max_features < 64:
+            raise ValueError(f"max_features must be >= 64, got {self.max_features}")
+        if self.matcher not in ("auto", "exhaustive", "sequential"):
+            raise ValueError(f"matcher must be auto, exhaustive or sequential, got {self.matcher!r}")
+
+
+@dataclass
+class ColmapResult:
+    """Registered cameras (input-resolution intrinsics, COLMAP's frame, camera-to-world OpenCV
+    axes, named by image stem), the names COLMAP could not register, and model statistics.
+
+    points: (P, 3) float64 sparse points in COLMAP's frame. reprojection_error_px is the mean
+    over all observations, in input-resolution pixels.
+    """
+
+    cameras: list[Camera]
+    unregistered: list[str]
+    reprojection_error_px: float
+    points: np.ndarray
+    num_models: int
+    mean_track_length: float
+    reconstruction: object = field(repr=False)  # pycolmap.Reconstruction, in COLMAP's frame
+
+
+def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path) -> list[str]:
+    """Copy (scale 1) or resize (INTER_AREA down, INTER_CUBIC up) every image into ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    names = []
+    for stem, path in images.items():
+        name = f"{stem}{Path(path).suffix.lower() or '.png'}"
+        if scale == 1.0:
+            shutil.copyfile(path, folder / name)
+        else:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise ReconstructionError(f"{path}: unreadable image")
+            h, w = img.shape[:2]
+            size = (int(round(w * scale)), int(round(h * scale)))  # as Intrinsics.scaled
+            interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
+            cv2.imwrite(str(folder / name), cv2.resize(img, size, interpolation=interp))
+        names.append(name)
+    return names
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ReconstructionError(f"{path}: unreadable image")
+    return img.shape[1], img.shape[0]
+
+
+def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intrinsics:
+    """A pycolmap PINHOLE/OPENCV camera -> our Intrinsics at the input resolution."""
+    p = np.asarray(cam.params, dtype=np.float64)
+    if cam.model_name == "PINHOLE":
+        fx, fy, cx, cy = p
+        dist = (0.0,) * 5
+    elif cam.model_name == "OPENCV":
+        fx, fy, cx, cy, k1, k2, p1, p2 = p
+        dist = (k1, k2, p1, p2, 0.0)
+    else:  # pragma: no cover - we only create these two models
+        raise ReconstructionError(f"unexpected COLMAP camera model {cam.model_name}")
+    return Intrinsics(width, height, fx * scale_back, fy * scale_back, cx * scale_back, cy * scale_back, dist)
+
+
+def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
+                    config: ColmapConfig = ColmapConfig()) -> ColmapResult:
+    """Run feature extraction, matching and incremental mapping on ``images``.
+
+    images: view name (file stem) -> image file (8-bit PNG/JPEG), all one size.
+    intrinsics: the true calibration at the images' resolution; required when
+        ``config.known_intrinsics``, else ignored. workdir: an empty scratch folder (database,
+        resized images, raw models). Returns a :class:`ColmapResult` for the largest model.
+    Raises :class:`ReconstructionError` when COLMAP builds no model (e.g. a textureless
+    object: no features survive matching, the mapper returns nothing).
+    """
+    import pycolmap
+
+    if len(images) < 2:
+        raise ReconstructionError(f"structure from motion needs at least 2 images, got {len(images)}")
+    if config.known_intrinsics and intrinsics is None:
+        raise ValueError("known_intrinsics needs the intrinsics")
+    workdir = Path(workdir)
+    image_dir, db = workdir / "images", workdir / "database.db"
+    first = next(iter(images.values()))
+    width, height = _image_size(Path(first))
+    names = _prepare_images(images, config.image_scale, image_dir)
+    sw, sh = _image_size(image_dir / names[0])
+    scale_back = width / sw
+
+    reader = pycolmap.ImageReaderOptions()
+    if config.known_intrinsics:
+        k = intrinsics.scaled(sw / width)
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = ",".join(repr(float(v)) for v in (k.fx, k.fy, k.cx, k.cy))
+    else:
+        reader.camera_model = "OPENCV"
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = config.num_threads
+    extraction.sift.max_num_features = config.max_features
+    extraction.use_gpu = False
+    pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = config.num_threads
+    matching.use_gpu = False
+    use_seq = config.matcher == "sequential" or (config.matcher == "auto" and len(names) > config.exhaustive_max_images)
+    if use_seq:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = config.sequential_overlap
+        pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    else:
+        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.random_seed = config.seed
+    opts.mapper.random_seed = config.seed
+    opts.triangulation.random_seed = config.seed
+    opts.num_threads = config.num_threads
+    opts.min_model_size = min(10, len(names))
+    fixed = config.known_intrinsics
+    opts.ba_refine_focal_length = not fixed
+    opts.ba_refine_extra_params = not fixed
+    opts.ba_refine_principal_point = (not fixed) and config.refine_principal_point
+    opts.mapper.abs_pose_refine_focal_length = not fixed
+    opts.mapper.abs_pose_refine_extra_params = not fixed
+    models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
+    models = {i: m for i, m in (models or {}).items() if m.num_reg_images() > 0}
+    if not models:
+        raise ReconstructionError(
+            f"COLMAP built no model from {len(names)} images (too few features or matches: textureless subject?)")
+    rec = max(models.values(), key=lambda m: m.num_reg_images())
+
+    if config.final_ba_iterations > 0:
+        ba = pycolmap.BundleAdjustmentOptions()
+        ba.refine_focal_length = not fixed
+        ba.refine_extra_params = not fixed
+        ba.refine_principal_point = (not fixed) and config.refine_principal_point
+        ba.print_summary = False
+        ba.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+        so = ba.ceres.solver_options
+        so.max_num_iterations = config.final_ba_iterations
+        so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
+        so.num_threads = config.num_threads
+        pycolmap.bundle_adjustment(rec, ba)
+
+    cameras, registered = [], set()
+    for img in rec.images.values():
+        if not img.has_pose:
+            continue
+        stem = Path(img.name).stem
+        w2c = np.eye(4)
+        w2c[:3, :] = np.asarray(img.cam_from_world().matrix(), dtype=np.float64)
+        c2w = np.eye(4)
+        c2w[:3, :3] = w2c[:3, :3].T
+        c2w[:3, 3] = -w2c[:3, :3].T @ w2c[:3, 3]
+        cameras.append(Camera(_camera_from_colmap(img.camera, scale_back, width, height), c2w, stem))
+        registered.add(stem)
+    order = {n: i for i, n in enumerate(images)}
+    cameras.sort(key=lambda c: order[c.name])
+    points = np.array([p.xyz for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3)
+    err = float(rec.compute_mean_reprojection_error()) * scale_back if len(points) else 0.0
+    return ColmapResult(cameras=cameras, unregistered=[n for n in images if n not in registered],
+                        reprojection_error_px=err if np.isfinite(err) else 0.0, points=points,
+                        num_models=len(models), mean_track_length=float(rec.compute_mean_track_length())
+                        if len(points) else 0.0, reconstruction=rec)
