@@ -97,6 +97,13 @@ class Geometry:
         """(N, 3) points at barycentrics (u, v) (Embree's: p = v0 + u e1 + v e2) of triangles ``tri``."""
         return self.v0[tri] + u[:, None] * self.e1[tri] + v[:, None] * self.e2[tri]
 
+    def point_normal(self, tri: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(points (N, 3), unit geometric normals (N, 3)) at barycentrics (u, v): one gather."""
+        if getattr(self, "_packed", None) is None:
+            self._packed = np.concatenate([self.v0, self.e1, self.e2, self.normal], axis=1)
+        q = self._packed[tri]
+        return q[:, 0:3] + u[:, None] * q[:, 3:6] + v[:, None] * q[:, 6:9], q[:, 9:12]
+
     def texcoords(self, tri: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(N, 2) interpolated texture coordinates at barycentrics (u, v)."""
         c = self.uv[tri]
@@ -116,7 +123,8 @@ class Hits:
 
 def offset_eps(p: np.ndarray, extent: float) -> np.ndarray:
     """(N,) ray-offset error bound OFFSET_REL * (max_k |p_k| + 1e-2 * extent) at points p (N, 3)."""
-    return OFFSET_REL * (np.max(np.abs(p), axis=1) + 1e-2 * extent)
+    a = np.abs(p)
+    return OFFSET_REL * (np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2]) + 1e-2 * extent)
 
 
 def spawn_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, extent: float) -> np.ndarray:
@@ -126,7 +134,7 @@ def spawn_origin(p: np.ndarray, ng: np.ndarray, w: np.ndarray, extent: float) ->
     :func:`offset_eps` along +ng or -ng. Returns (N, 3) float64.
     """
     eps = offset_eps(p, extent)
-    side = np.where(np.einsum("ij,ij->i", w, ng) >= 0.0, eps, -eps)
+    side = np.where(w[:, 0] * ng[:, 0] + w[:, 1] * ng[:, 1] + w[:, 2] * ng[:, 2] >= 0.0, eps, -eps)
     return p + side[:, None] * ng
 
 
@@ -191,12 +199,21 @@ class Accel:
             return out["primID"], out["tfar"], out["u"], out["v"]
 
         parts = self._split(run, n, threads)
-        prim = np.concatenate([p[0] for p in parts]).astype(np.int64)
+        if len(parts) == 1:
+            prim, tf32, u32, v32 = parts[0]
+        else:
+            prim, tf32, u32, v32 = (np.concatenate([p[i] for p in parts]) for i in range(4))
         hit = prim >= 0
-        tri = np.where(hit, self._ids[np.where(hit, prim, 0)], -1)
-        t = np.where(hit, np.concatenate([p[1] for p in parts]).astype(np.float64), np.inf)
-        u = np.where(hit, np.concatenate([p[2] for p in parts]).astype(np.float64), 0.0)
-        v = np.where(hit, np.concatenate([p[3] for p in parts]).astype(np.float64), 0.0)
+        tri = self._ids[np.maximum(prim, 0)]
+        t = tf32.astype(np.float64)
+        u = u32.astype(np.float64)
+        v = v32.astype(np.float64)
+        if not hit.all():
+            miss = ~hit
+            tri[miss] = -1
+            t[miss] = np.inf
+            u[miss] = 0.0
+            v[miss] = 0.0
         return Hits(t, tri, u, v)
 
     def occluded(self, origins: np.ndarray, dirs: np.ndarray, tmax, threads: int | None = None) -> np.ndarray:

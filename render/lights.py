@@ -22,8 +22,8 @@ import numpy as np
 
 from .accel import Geometry
 from .bsdf import MaterialTable
+from .sampling import dot3
 from .scene import DirectionalLight, PointLight, Scene, SpotLight, spot_falloff
-from .sampling import uniform_triangle
 
 __all__ = ["LightSample", "LightSet", "POINT", "SPOT", "DIRECTIONAL"]
 
@@ -90,6 +90,10 @@ class LightSet:
         self.tri_pdf_area = np.zeros(len(geom.obj))
         if self.n_area:
             self.tri_pdf_area[self.tri] = self.pmf[: self.n_area] / geom.area[self.tri]
+        # per area-entry copies of the triangle data, gathered once per sample by entry index
+        self.a_v0, self.a_e1, self.a_e2 = geom.v0[self.tri], geom.e1[self.tri], geom.e2[self.tri]
+        self.a_normal = geom.normal[self.tri]
+        self.a_pdf_area = self.pmf[: self.n_area] / np.maximum(geom.area[self.tri], 1e-300)
         self.has_area = self.n_area > 0 and self.pmf[: self.n_area].sum() > 0
         self.has_delta = nd > 0 and p_delta.sum() > 0
 
@@ -105,9 +109,28 @@ class LightSet:
         """
         return self.tri_pdf_area[tri] * dist * dist / np.maximum(np.abs(cos_light), _COS_FLOOR)
 
+    def _sample_area(self, p: np.ndarray, u_sel: np.ndarray, u2: np.ndarray) -> LightSample:
+        """:meth:`sample` when every light is an area source (no masks, no scatter)."""
+        floor = (1e-9 * self.geom.extent) ** 2
+        j = np.minimum(np.searchsorted(self.cdf, u_sel * self.cdf[-1], side="right"), len(self.pmf) - 1)
+        su = np.sqrt(u2[:, 0])
+        b1 = (1.0 - su)[:, None]
+        b2 = (u2[:, 1] * su)[:, None]
+        d = self.a_v0[j] + b1 * self.a_e1[j] + b2 * self.a_e2[j] - p
+        r2 = np.maximum(dot3(d, d), floor)
+        r = np.sqrt(r2)
+        w = d / r[:, None]
+        cos_l = -dot3(w, self.a_normal[j])
+        emits = self.two_sided[j] | (cos_l > 0)
+        pdf = self.a_pdf_area[j] * r2 / np.maximum(np.abs(cos_l), _COS_FLOOR)
+        Li = self.Le[j] * emits[:, None]
+        return LightSample(w, r, Li, pdf, np.zeros(len(p), bool), emits & (cos_l != 0))
+
     def sample(self, p: np.ndarray, u_sel: np.ndarray, u2: np.ndarray) -> LightSample:
         """Sample one light per shading point. p (N, 3); u_sel (N,), u2 (N, 2) uniforms."""
         n = len(p)
+        if n and not self.empty and len(self.d_kind) == 0:
+            return self._sample_area(p, u_sel, u2)
         wi = np.zeros((n, 3))
         wi[:, 2] = 1.0
         dist = np.ones(n)
@@ -120,21 +143,21 @@ class LightSet:
         floor = (1e-9 * self.geom.extent) ** 2
         k = np.minimum(np.searchsorted(self.cdf, u_sel * self.cdf[-1], side="right"), len(self.pmf) - 1)
         # area sources
-        a = np.nonzero(k < self.n_area)[0]
-        if len(a):
-            j = k[a]
-            t = self.tri[j]
-            b = uniform_triangle(u2[a])
-            g = self.geom
-            y = g.v0[t] + b[:, 0:1] * g.e1[t] + b[:, 1:2] * g.e2[t]
-            d = y - p[a]
+        all_area = len(self.d_kind) == 0
+        a = slice(None) if all_area else np.nonzero(k < self.n_area)[0]
+        j = k if all_area else k[a]
+        if len(j):
+            su = np.sqrt(u2[a, 0])
+            b1 = (1.0 - su)[:, None]
+            b2 = (u2[a, 1] * su)[:, None]
+            d = self.a_v0[j] + b1 * self.a_e1[j] + b2 * self.a_e2[j] - p[a]
             r2 = np.maximum(np.einsum("ij,ij->i", d, d), floor)
             r = np.sqrt(r2)
             w = d / r[:, None]
-            cos_l = -np.einsum("ij,ij->i", w, g.normal[t])
+            cos_l = -np.einsum("ij,ij->i", w, self.a_normal[j])
             emits = self.two_sided[j] | (cos_l > 0)
             wi[a], dist[a] = w, r
-            pdf[a] = self.pmf[j] / g.area[t] * r2 / np.maximum(np.abs(cos_l), _COS_FLOOR)
+            pdf[a] = self.a_pdf_area[j] * r2 / np.maximum(np.abs(cos_l), _COS_FLOOR)
             Li[a] = self.Le[j] * emits[:, None]
             valid[a] = emits & (np.abs(cos_l) > 0)
         # delta lights: loop over lights (few), vectorized over points

@@ -40,12 +40,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .accel import Accel, Geometry, offset_eps, spawn_origin
-from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, MaterialTable, dielectric_sample, lambert_sample, mirror_sample
+from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, MaterialTable, dielectric_sample, mirror_sample
 from .camera import Camera
 from .effects import scene_effects
 from .film import Film, RenderResult, merge_results
 from .lights import LightSet
-from .sampling import INV_PI, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform
+from .sampling import (INV_PI, cosine_hemisphere, mis_weight, orthonormal_frame, path_keys, to_local, to_world,
+                       uniform_block, dot3, max3)
 from .scene import DirectionalLight, PointLight, Scene, SpotLight
 
 __all__ = [
@@ -151,14 +152,21 @@ def _heuristic(settings: RenderSettings):
 
 def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caustics: bool,
            pix: np.ndarray, sidx: np.ndarray) -> tuple[np.ndarray, int]:
-    """Trace one camera sample per (pixel, sample index) pair. Returns ((N, 3) radiance, rays)."""
+    """Trace one camera sample per (pixel, sample index) pair. Returns ((N, 3) radiance, rays).
+
+    Wavefront state per live path: idx (into the output), beta (throughput), keys (RNG), the
+    ray d, prev_pdf / prev_delta (how the ray was sampled, for MIS), after_diff (a diffuse
+    vertex lies behind: the path can no longer be a camera-side specular chain).
+    """
     g, mats, lights, accel = ps.geom, ps.mats, ps.lights, ps.accel
     heur = _heuristic(st)
     n = len(pix)
     width = cam.intrinsics.width
     keys = path_keys(st.seed, pix, sidx)
-    px = np.stack([(pix % width) + uniform(keys, 0), (pix // width) + uniform(keys, 1)], axis=1)
-    o, d = cam.pixel_rays(px)
+    jit = uniform_block(keys, 0, 2)
+    jit[:, 0] += pix % width
+    jit[:, 1] += pix // width
+    o, d = cam.pixel_rays(jit)
     L = np.zeros((n, 3))
     idx = np.arange(n)
     beta = np.ones((n, 3))
@@ -170,6 +178,9 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caust
     direct = integ == "direct"
     nee_area = st.strategy != "bsdf" and lights.has_area
     nee_any = nee_area or lights.has_delta
+    mis_on_hits = lights.has_area and st.strategy != "bsdf"
+    continue_diffuse = not (direct and st.strategy == "light" and not has_bg)
+    has_specular = bool(np.any((mats.kind == MIRROR) | (mats.kind == DIELECTRIC)))
     extent = g.extent
     nrays = 0
     for depth in range(st.max_depth + 1):
@@ -177,74 +188,75 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caust
             break
         h = accel.intersect(o, d, threads=1)
         nrays += len(idx)
-        hit = h.tri >= 0
-        if not hit.all():
-            if has_bg:
-                m = ~hit
-                w = np.ones(int(m.sum()))
-                if not caustics:
-                    w[prev_delta[m] & after_diff[m]] = 0.0
-                L[idx[m]] += beta[m] * bg * w[:, None]
-            idx, beta, prev_pdf, prev_delta, after_diff, keys, d = (
-                a[hit] for a in (idx, beta, prev_pdf, prev_delta, after_diff, keys, d))
-            tri, tt, hu, hv = h.tri[hit], h.t[hit], h.u[hit], h.v[hit]
-        else:
-            tri, tt, hu, hv = h.tri, h.t, h.u, h.v
-        if len(idx) == 0:
-            break
-        obj = g.obj[tri]
-        ng = g.normal[tri]
-        cos_hit = -np.einsum("ij,ij->i", d, ng)
+        tri = h.tri
+        hit = tri >= 0
+        all_hit = bool(hit.all())
+        if not all_hit and has_bg:
+            m = np.nonzero(~hit)[0]
+            w = np.ones(len(m))
+            if not caustics:
+                w[prev_delta[m] & after_diff[m]] = 0.0
+            L[idx[m]] += beta[m] * bg * w[:, None]
+        obj = g.obj[tri]  # tri = -1 on misses gives a valid, masked-out index
+        kind = mats.kind[obj]
         # ---- emission found by the ray (camera, specular chain, or BSDF sample)
-        emits = mats.emits[obj]
-        if emits.any():
-            e = np.nonzero(emits & (mats.two_sided[obj] | (cos_hit > 0)))[0]
+        em = mats.emits[obj] & hit
+        if em.any():
+            e = np.nonzero(em)[0]
+            cos_hit = -np.einsum("ij,ij->i", d[e], g.normal[tri[e]])
+            front = mats.two_sided[obj[e]] | (cos_hit > 0)
+            e, cos_hit = e[front], cos_hit[front]
             if len(e):
                 w = np.ones(len(e))
                 nd = np.nonzero(~prev_delta[e])[0]
-                if len(nd):
-                    if not lights.has_area or st.strategy == "bsdf":
-                        pass
-                    elif st.strategy == "light":
-                        w[nd] = 0.0
-                    else:
-                        en = e[nd]
-                        w[nd] = heur(prev_pdf[en], lights.pdf_hit(tri[en], tt[en], cos_hit[en]))
+                if len(nd) and st.strategy == "light" and lights.has_area:
+                    w[nd] = 0.0
+                elif len(nd) and mis_on_hits:
+                    en = e[nd]
+                    w[nd] = heur(prev_pdf[en], lights.pdf_hit(tri[en], h.t[en], cos_hit[nd]))
                 if not caustics:
                     w[prev_delta[e] & after_diff[e]] = 0.0
                 L[idx[e]] += beta[e] * mats.Le[obj[e]] * w[:, None]
         if depth == st.max_depth:
             break
-        kind = mats.kind[obj]
-        alive = kind != EMISSIVE
+        alive = hit & (kind != EMISSIVE)
         if direct:
             alive &= ~after_diff
         if not alive.all():
-            idx, beta, after_diff, keys, d, tri, tt, hu, hv, obj, ng, kind = (
-                a[alive] for a in (idx, beta, after_diff, keys, d, tri, tt, hu, hv, obj, ng, kind))
+            s = np.nonzero(alive)[0]
+            idx, beta, after_diff, keys, d, tri, obj, kind = (
+                a[s] for a in (idx, beta, after_diff, keys, d, tri, obj, kind))
+            hu, hv = h.u[s], h.v[s]
+        else:
+            hu, hv = h.u, h.v
         m_live = len(idx)
         if m_live == 0:
             break
-        p = g.point(tri, hu, hv)
-        wo = -d
-        cos_o = np.einsum("ij,ij->i", wo, ng)
+        p, ng = g.point_normal(tri, hu, hv)
+        cos_o = -dot3(d, ng)
         # shading normal: facing wo for two-sided materials, outward for dielectrics
-        flip = (kind != DIELECTRIC) & (cos_o < 0)
+        flip = cos_o < 0
+        if has_specular:
+            flip &= kind != DIELECTRIC
         nrm = np.where(flip[:, None], -ng, ng)
-        s_ax, t_ax = orthonormal_frame(nrm)
-        wo_l = to_local(wo, s_ax, t_ax, nrm)
-        base = 2 + _DIMS_PER_BOUNCE * depth
+        rnd = uniform_block(keys, 2 + _DIMS_PER_BOUNCE * depth, 7)
         diff = np.nonzero(kind == LAMBERT)[0]
-        alb = None
+        all_diff = len(diff) == m_live
+        wi = np.zeros((m_live, 3))
+        weight = np.zeros((m_live, 3))
+        pdf = np.zeros(m_live)
+        delta = np.zeros(m_live, bool)
+        valid = np.zeros(m_live, bool)
         if len(diff):
-            td, ud, vd = tri[diff], hu[diff], hv[diff]
-            alb = mats.diffuse_albedo(obj[diff], lambda m: g.texcoords(td[m], ud[m], vd[m]))
+            sub = slice(None) if all_diff else diff
+            td, ud, vd = tri[sub], hu[sub], hv[sub]
+            alb = mats.diffuse_albedo(obj[sub], lambda m: g.texcoords(td[m], ud[m], vd[m]))
+            n_d = nrm[sub]
+            beta_d = beta[sub]
             # ---- next-event estimation at diffuse vertices
             if nee_any:
-                kd = keys[diff]
-                ls = lights.sample(p[diff], uniform(kd, base),
-                                   np.stack([uniform(kd, base + 1), uniform(kd, base + 2)], axis=1))
-                cos_i = np.einsum("ij,ij->i", ls.wi, nrm[diff])
+                ls = lights.sample(p[sub], rnd[sub, 0], rnd[sub, 1:3])
+                cos_i = dot3(ls.wi, n_d)
                 ok = ls.valid & (cos_i > 0)
                 if not nee_area:
                     ok &= ls.delta
@@ -254,52 +266,56 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caust
                     if st.strategy == "mis":
                         area = ~ls.delta[k]
                         w[area] = heur(ls.pdf[k][area], cos_i[k][area] * INV_PI)
-                    dk = diff[k]
-                    pk = p[dk]
-                    origin = spawn_origin(pk, ng[dk], ls.wi[k], extent)
+                    pk = p[diff[k]]
+                    wk = ls.wi[k]
+                    origin = spawn_origin(pk, ng[diff[k]], wk, extent)
                     tmax = np.maximum(ls.dist[k] * (1.0 - 1e-4) - 2.0 * offset_eps(pk, extent), 0.0)
-                    occ = accel.occluded(origin, ls.wi[k], tmax, threads=1)
+                    occ = accel.occluded(origin, wk, tmax, threads=1)
                     nrays += len(k)
                     vis = np.nonzero(~occ)[0]
                     kv = k[vis]
                     scale = INV_PI * cos_i[kv] * w[vis] / ls.pdf[kv]
-                    L[idx[diff[kv]]] += beta[diff[kv]] * alb[kv] * ls.Li[kv] * scale[:, None]
-        # ---- BSDF sampling
-        wi_l = np.zeros((m_live, 3))
-        weight = np.zeros((m_live, 3))
-        pdf = np.zeros(m_live)
-        delta = np.zeros(m_live, bool)
-        valid = np.zeros(m_live, bool)
-
-        def put(sel, bs):
-            wi_l[sel], weight[sel], pdf[sel], delta[sel], valid[sel] = bs.wi, bs.weight, bs.pdf, bs.delta, bs.valid
-
-        if len(diff):
-            continue_diffuse = not (direct and st.strategy == "light" and not has_bg)
+                    L[idx[diff[kv]]] += beta_d[kv] * alb[kv] * ls.Li[kv] * scale[:, None]
+            # ---- cosine-weighted BSDF sample, built in world space
             if continue_diffuse:
-                kd = keys[diff]
-                put(diff, lambert_sample(alb, wo_l[diff], np.stack([uniform(kd, base + 4), uniform(kd, base + 5)], axis=1)))
-        mir = np.nonzero(kind == MIRROR)[0]
-        if len(mir):
-            put(mir, mirror_sample(mats.albedo[obj[mir]], wo_l[mir]))
-        die = np.nonzero(kind == DIELECTRIC)[0]
-        if len(die):
-            put(die, dielectric_sample(mats.ior[obj[die]], wo_l[die], uniform(keys[die], base + 3)))
+                loc = cosine_hemisphere(rnd[sub, 4:6])
+                s_ax, t_ax = orthonormal_frame(n_d)
+                wi[sub] = to_world(loc, s_ax, t_ax, n_d)
+                weight[sub] = alb
+                pdf[sub] = loc[:, 2] * INV_PI
+                valid[sub] = (loc[:, 2] > 0) & (cos_o[sub] != 0)
+        if has_specular and not all_diff:
+            spec = np.nonzero(kind != LAMBERT)[0]
+            n_s = nrm[spec]
+            s_ax, t_ax = orthonormal_frame(n_s)
+            wo_l = to_local(-d[spec], s_ax, t_ax, n_s)
+            ks = kind[spec]
+            bs_wi = np.zeros((len(spec), 3))
+            for kk, fn in ((MIRROR, lambda sel: mirror_sample(mats.albedo[obj[spec[sel]]], wo_l[sel])),
+                           (DIELECTRIC, lambda sel: dielectric_sample(mats.ior[obj[spec[sel]]], wo_l[sel],
+                                                                      rnd[spec[sel], 3]))):
+                sel = np.nonzero(ks == kk)[0]
+                if len(sel):
+                    bs = fn(sel)
+                    bs_wi[sel] = bs.wi
+                    tgt = spec[sel]
+                    weight[tgt], pdf[tgt], delta[tgt], valid[tgt] = bs.weight, bs.pdf, bs.delta, bs.valid
+            wi[spec] = to_world(bs_wi, s_ax, t_ax, n_s)
         beta = beta * weight
         if integ == "path" and st.roulette and depth >= st.rr_depth:
-            survive = np.minimum(1.0, beta.max(axis=1))
-            live = uniform(keys, base + 6) < survive
+            survive = np.minimum(1.0, max3(beta))
+            live = rnd[:, 6] < survive
             beta[live] /= survive[live][:, None]
             valid &= live
-        valid &= beta.max(axis=1) > 0
-        wi = to_world(wi_l, s_ax, t_ax, nrm)
-        is_diff = kind == LAMBERT
-        sel = np.nonzero(valid)[0]
-        idx, beta, keys = idx[sel], beta[sel], keys[sel]
-        prev_pdf, prev_delta = pdf[sel], delta[sel]
-        after_diff = after_diff[sel] | is_diff[sel]
-        d = wi[sel]
-        o = spawn_origin(p[sel], ng[sel], d, extent)
+        valid &= max3(beta) > 0
+        if not valid.all():
+            s = np.nonzero(valid)[0]
+            idx, beta, keys, kind, after_diff = idx[s], beta[s], keys[s], kind[s], after_diff[s]
+            prev_pdf, prev_delta, d, p, ng = pdf[s], delta[s], wi[s], p[s], ng[s]
+        else:
+            prev_pdf, prev_delta, d = pdf, delta, wi
+        after_diff = after_diff | (kind == LAMBERT)
+        o = spawn_origin(p, ng, d, extent)
     return L, nrays
 
 

@@ -16,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "path_keys", "uniform", "INV_PI",
+    "path_keys", "uniform", "uniform_block", "INV_PI",
     "concentric_disk", "cosine_hemisphere", "cosine_hemisphere_pdf",
     "uniform_hemisphere", "uniform_hemisphere_pdf", "uniform_sphere", "uniform_sphere_pdf",
     "uniform_triangle", "balance_heuristic", "power_heuristic", "mis_weight",
-    "orthonormal_frame", "to_local", "to_world",
+    "orthonormal_frame", "to_local", "to_world", "dot3", "max3",
 ]
 
 INV_PI = 1.0 / np.pi
@@ -57,25 +57,42 @@ def uniform(keys: np.ndarray, dim: int) -> np.ndarray:
     return (x >> _S11).astype(np.float64) * (1.0 / 9007199254740992.0)
 
 
-def concentric_disk(u: np.ndarray) -> np.ndarray:
-    """Shirley-Chiu concentric map, u (N, 2) in [0,1)^2 -> (N, 2) points on the unit disk."""
+def uniform_block(keys: np.ndarray, dim0: int, count: int) -> np.ndarray:
+    """(N, count) float64 uniforms for dimensions dim0 .. dim0 + count - 1 (same values as
+    :func:`uniform` per dimension), in one vectorized hash."""
+    steps = (np.arange(dim0 + 1, dim0 + count + 1, dtype=np.uint64) * _GOLDEN)[None, :]
+    x = _mix64(keys[:, None] + steps)
+    return (x >> _S11).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def _concentric(u: np.ndarray, out: np.ndarray) -> None:
+    """Write the concentric map of u (N, 2) into out[:, 0:2]."""
     a = 2.0 * u[:, 0] - 1.0
     b = 2.0 * u[:, 1] - 1.0
     big_a = np.abs(a) > np.abs(b)
-    safe_a = np.where(a == 0, 1.0, a)
-    safe_b = np.where(b == 0, 1.0, b)
-    r = np.where(big_a, a, b)
-    theta = np.where(big_a, (np.pi / 4) * (b / safe_a), np.pi / 2 - (np.pi / 4) * (a / safe_b))
-    out = np.stack([r * np.cos(theta), r * np.sin(theta)], axis=1)
-    out[(a == 0) & (b == 0)] = 0.0
+    num = np.where(big_a, b, a)
+    den = np.where(big_a, a, b)
+    zero = den == 0
+    ratio = num / np.where(zero, 1.0, den)
+    theta = np.where(big_a, (np.pi / 4) * ratio, np.pi / 2 - (np.pi / 4) * ratio)
+    r = np.where(zero, 0.0, den)
+    out[:, 0] = r * np.cos(theta)
+    out[:, 1] = r * np.sin(theta)
+
+
+def concentric_disk(u: np.ndarray) -> np.ndarray:
+    """Shirley-Chiu concentric map, u (N, 2) in [0,1)^2 -> (N, 2) points on the unit disk."""
+    out = np.empty((len(u), 2))
+    _concentric(u, out)
     return out
 
 
 def cosine_hemisphere(u: np.ndarray) -> np.ndarray:
     """Cosine-weighted directions about +z (Malley's method): u (N, 2) -> (N, 3) unit vectors."""
-    d = concentric_disk(u)
-    z = np.sqrt(np.maximum(0.0, 1.0 - d[:, 0] ** 2 - d[:, 1] ** 2))
-    return np.concatenate([d, z[:, None]], axis=1)
+    out = np.empty((len(u), 3))
+    _concentric(u, out)
+    out[:, 2] = np.sqrt(np.maximum(0.0, 1.0 - out[:, 0] ** 2 - out[:, 1] ** 2))
+    return out
 
 
 def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:
@@ -153,10 +170,21 @@ def orthonormal_frame(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return s, t
 
 
+def dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (N, 3) arrays -> (N,)."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def max3(a: np.ndarray) -> np.ndarray:
+    """Row-wise maximum of an (N, 3) array -> (N,) (faster than a.max(axis=1) for 3 columns)."""
+    return np.maximum(np.maximum(a[:, 0], a[:, 1]), a[:, 2])
+
+
 def to_local(w: np.ndarray, s: np.ndarray, t: np.ndarray, n: np.ndarray) -> np.ndarray:
     """World directions (N, 3) -> local frame coordinates (N, 3) (z along n)."""
-    return np.stack([np.einsum("ij,ij->i", w, s), np.einsum("ij,ij->i", w, t),
-                     np.einsum("ij,ij->i", w, n)], axis=1)
+    out = np.empty_like(w)
+    out[:, 0], out[:, 1], out[:, 2] = dot3(w, s), dot3(w, t), dot3(w, n)
+    return out
 
 
 def to_world(w: np.ndarray, s: np.ndarray, t: np.ndarray, n: np.ndarray) -> np.ndarray:
