@@ -42,7 +42,7 @@ import numpy as np
 from .camera import Camera, Intrinsics
 
 __all__ = ["MODES", "SlabGeometry", "LightSlab", "SlabHits", "slab_coordinates", "lookup",
-           "select_slabs", "render_rays", "render_view", "sheared_camera"]
+           "select_slabs", "render_rays", "render_view", "camera_hits", "sheared_camera"]
 
 MODES = ("nearest", "uv", "st", "quadrilinear", "depth")
 
@@ -258,13 +258,18 @@ def _mul(a, b):
 def _gather(flat: np.ndarray, taps_v, taps_u, taps_t, taps_s, shape) -> np.ndarray:
     """Sum of weighted samples over the product of per-axis taps; flat (Nv*Nu*Nt*Ns, C)."""
     nu, nv, ns, nt = shape
+    uv = [(iv * nu + iu, _mul(wv, wu)) for (iv, wv), (iu, wu) in itertools.product(taps_v, taps_u)]
+    st = [(it * ns + is_, _mul(wt, ws)) for (it, wt), (is_, ws) in itertools.product(taps_t, taps_s)]
     out = None
-    for (iv, wv), (iu, wu), (it, wt), (is_, ws) in itertools.product(taps_v, taps_u, taps_t, taps_s):
-        idx = ((iv * nu + iu) * nt + it) * ns + is_
-        vals = flat[idx]
-        w = _mul(_mul(wv, wu), _mul(wt, ws))
-        term = vals if w is None else vals * w[:, None]
-        out = term.astype(np.float32, copy=True) if out is None else out + term
+    for (a, wa), (b, wb) in itertools.product(uv, st):
+        vals = np.take(flat, a * (nt * ns) + b, axis=0)
+        w = _mul(wa, wb)
+        if w is not None:
+            vals *= w[:, None]
+        if out is None:
+            out = vals.astype(np.float32, copy=False)
+        else:
+            out += vals
     return out
 
 
@@ -341,7 +346,9 @@ def select_slabs(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarr
     return best, all_hits
 
 
-def _subset(h: SlabHits, sel: np.ndarray) -> SlabHits:
+def _subset(h, sel: np.ndarray) -> SlabHits:
+    if isinstance(h, _LazyHits):
+        return h.subset(sel)
     return SlabHits(h.uv[sel], h.st[sel], h.coords[sel], h.valid[sel], h.cos[sel])
 
 
@@ -351,11 +358,73 @@ def render_rays(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarra
     ``background`` (3,) linear RGB. origins, dirs: (N, 3) world rays (eye -> scene)."""
     if mode not in MODES:
         raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
+    o, d = _check_rays(origins, dirs)
+    return _render_hits(slabs, [slab_coordinates(s.geometry, o, d) for s in slabs], mode, background)
+
+
+def camera_hits(geom: SlabGeometry, camera: Camera) -> "_LazyHits":
+    """:func:`slab_coordinates` of every pixel-centre ray of an undistorted pinhole ``camera``
+    (row-major, N = H * W), computed in float32 from the two plane homographies: a pinhole's ray
+    through pixel p = (x, y, 1) has direction A p in the slab frame (A = R_slab R_cam K^-1), so
+    each coordinate is a ratio of affine functions of x and y (no per-ray matrix products)."""
+    k = camera.intrinsics
+    if k.has_distortion:
+        o, d = camera.pixel_rays()
+        h = slab_coordinates(geom, o, d)
+        return _LazyHits([h.uv[:, 0], h.uv[:, 1], h.st[:, 0], h.st[:, 1], *h.coords.T], h.valid, h.cos)
+    Kinv = np.linalg.inv(k.K)
+    A = geom.rotation @ camera.cam_to_world[:3, :3] @ Kinv
+    oc = geom.rotation @ (camera.center - geom.uv_corners[0])
+    x = (np.arange(k.width, dtype=np.float32) + np.float32(0.5))[None, :]
+    y = (np.arange(k.height, dtype=np.float32) + np.float32(0.5))[:, None]
+    A32 = A.astype(np.float32)
+    dx, dy, dz = (A32[i, 0] * x + (A32[i, 1] * y + A32[i, 2]) for i in range(3))
+    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+    cos = dz / norm  # norm > 0: K^-1 p has z = 1
+    ok = cos > MIN_COS
+    if not oc[2] < geom.distance:  # the eye is beyond the st plane: every ray misses
+        ok[:] = False
+    dzs = np.where(ok, dz, np.float32(1.0))
+    D = geom.distance
+    f_uv, f_st = np.float32(-oc[2]) / dzs, np.float32(D - oc[2]) / dzs
+    ox, oy = np.float32(oc[0]), np.float32(oc[1])
+    ux, uy = ox + f_uv * dx, oy + f_uv * dy
+    sx, sy = ox + f_st * dx, oy + f_st * dy
+    cu = ux * np.float32(1 / geom.uv_size[0])
+    cv = uy * np.float32(1 / geom.uv_size[1])
+    cs = (sx - np.float32(geom.st_offset[0])) * np.float32(1 / geom.st_size[0])
+    ct = (sy - np.float32(geom.st_offset[1])) * np.float32(1 / geom.st_size[1])
+    for c in (cu, cv, cs, ct):
+        ok &= (c >= 0) & (c <= 1)
+    ok = ok.reshape(-1)
+    return _LazyHits([a.reshape(-1) for a in (ux, uy, sx, sy, cu, cv, cs, ct)], ok, np.where(ok, cos.reshape(-1), 0))
+
+
+class _LazyHits:
+    """SlabHits of a whole image kept as flat components; stacked only for the rays a slab serves."""
+
+    def __init__(self, comps: list[np.ndarray], valid: np.ndarray, cos: np.ndarray):
+        self.comps, self.valid, self.cos = comps, valid, cos
+
+    def subset(self, sel: np.ndarray) -> SlabHits:
+        c = [a[sel] for a in self.comps]
+        return SlabHits(np.stack(c[0:2], 1), np.stack(c[2:4], 1), np.stack(c[4:8], 1), self.valid[sel], self.cos[sel])
+
+    def full(self) -> SlabHits:
+        return self.subset(slice(None))
+
+
+def _render_hits(slabs: Sequence[LightSlab], hits: list[SlabHits], mode: str, background) -> np.ndarray:
     bg = np.asarray(background, dtype=np.float32).reshape(-1)
     if bg.shape != (3,) or not np.all(np.isfinite(bg)):
         raise ValueError(f"background must be three finite numbers, got {background!r}")
-    best, hits = select_slabs(slabs, origins, dirs)
-    out = np.empty((len(best), 3), np.float32)
+    n = len(hits[0].valid) if hits else 0
+    best = np.full(n, -1, dtype=np.int64)
+    score = np.zeros(n, dtype=np.float32)
+    for k, h in enumerate(hits):
+        better = h.valid & (h.cos > score)
+        best[better], score[better] = k, h.cos[better]
+    out = np.empty((n, 3), np.float32)
     out[:] = bg
     for k, slab in enumerate(slabs):
         sel = np.flatnonzero(best == k)
@@ -364,12 +433,39 @@ def render_rays(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarra
     return out
 
 
-def render_view(slabs: Sequence[LightSlab], camera: Camera, mode: str = "quadrilinear",
-                background=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """(H, W, 3) float32 linear image of ``camera`` rendered from a slab set (every pixel centre)."""
+def _band(camera: Camera, row0: int, row1: int) -> Camera:
+    """The same camera restricted to pixel rows [row0, row1) (principal point shifted)."""
     k = camera.intrinsics
-    o, d = camera.pixel_rays()
-    return render_rays(slabs, o, d, mode, background).reshape(k.height, k.width, 3)
+    return Camera(Intrinsics(k.width, row1 - row0, k.fx, k.fy, k.cx, k.cy - row0, k.dist), camera.cam_to_world,
+                  camera.name)
+
+
+def render_view(slabs: Sequence[LightSlab], camera: Camera, mode: str = "quadrilinear",
+                background=(0.0, 0.0, 0.0), threads: int = 2) -> np.ndarray:
+    """(H, W, 3) float32 linear image of ``camera`` rendered from a slab set (every pixel centre);
+    each pixel's ray is looked up in the slab it crosses most steeply, else gets ``background``.
+    ``threads`` bands of rows are rendered concurrently (NumPy releases the GIL in its kernels)."""
+    if mode not in MODES:
+        raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
+    k = camera.intrinsics
+    if k.has_distortion:
+        threads = 1  # distorted rays are computed for the whole image
+    threads = max(1, min(int(threads), k.height))
+
+    def band(rows: tuple[int, int]) -> np.ndarray:
+        cam = camera if rows == (0, k.height) else _band(camera, *rows)
+        hits = [camera_hits(s.geometry, cam) for s in slabs]
+        return _render_hits(slabs, hits, mode, background)
+
+    edges = np.linspace(0, k.height, threads + 1).astype(int)
+    bands = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    if threads == 1:
+        return band(bands[0]).reshape(k.height, k.width, 3)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(threads) as pool:
+        parts = list(pool.map(band, bands))
+    return np.concatenate(parts).reshape(k.height, k.width, 3)
 
 
 def sheared_camera(geom: SlabGeometry, u: float, v: float, st_supersample: int = 1, name: str | None = None) -> Camera:

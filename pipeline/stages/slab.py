@@ -1,0 +1,345 @@
+"""The ``slab`` stage: light slabs built from a capture, held-out views rendered from them.
+
+Layout (DESIGN.md)::
+
+    slab/slabs/slabs.json, <name>.radiance.npy, <name>.depth.npy   the slab set (render.slab_io)
+    slab/renders/<view>.exr, <view>.png    held-out views in the primary mode (capture's names)
+    slab/errors/<view>.png, <view>.exr     |render - reference| (PNG: mean over RGB, x8, grey)
+    slab/modes/<mode>/<view>.png           previews of every interpolation mode (Fig. 13)
+    slab/metrics.json                      PSNR / SSIM per view and per mode, coverage, sizes
+    slab/manifest.json
+
+Split between layers: this stage reads the capture (images, depth, cameras: the layout is
+pipeline's), chooses the slab layout (:func:`recon.slab.slab_layout`), and acquires the slabs
+either ``direct`` (sheared-perspective renders by the rig's rasterizer, or its path tracer when
+the scene's effects require it, handed to :func:`recon.slab.acquire_direct` as a callback: recon
+never imports rig) or by ``rebin`` (:func:`recon.slab.rebin_slabs` from the captured train views
+and their depth maps, with the cameras of ``poses_dir`` when given). Rendering is
+:mod:`render.slab`.
+
+Reference for the metrics: ``reference_dir/linear/<view>.exr`` when given, else the sibling
+``reference`` stage folder of the capture (``artifacts/<scene>/reference``) when it is finished,
+else the capture's own held-out ``linear/<view>.exr`` (exact for direct-only scenes, which the
+rasterizer renders exactly).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, acquire_direct, content_bounds,
+                        rebin_slabs, slab_layout)
+from render.camera import Camera
+from render.camera_io import read_cameras_json
+from render.color import to_srgb8
+from render.image_io import read_exr, write_exr, write_png, write_preview
+from render.metrics import psnr, ssim
+from render.slab import MODES, LightSlab, render_view
+from render.slab_io import load_slabs
+
+from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, write_json
+from ..progress import progress_bar
+
+__all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "evaluate_views", "find_reference"]
+
+METHODS = ("direct", "rebin")
+
+
+@dataclass(frozen=True)
+class SlabStageConfig:
+    """method: ``direct`` or ``rebin``; mode: interpolation of ``renders/``; min_radiance: capture
+    pixels brighter than this (max over RGB, linear) bound the content the slabs must cover
+    (darker surfaces such as black velvet are left to the background); seed: path tracer seed."""
+
+    method: str = "direct"
+    mode: str = "depth"
+    layout: LayoutConfig = field(default_factory=LayoutConfig)
+    direct: DirectConfig = field(default_factory=DirectConfig)
+    rebin: RebinConfig = field(default_factory=RebinConfig)
+    min_radiance: float = 0.05
+    spp: int = 64
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"slab method must be one of {list(METHODS)}, got {self.method!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"interpolation mode must be one of {list(MODES)}, got {self.mode!r}")
+
+
+# ------------------------------------------------------------------------------------- inputs
+
+
+def _cameras(folder: Path) -> tuple[list[Camera], list[str]]:
+    path = Path(folder) / "cameras.json"
+    if not path.is_file():
+        raise BadInput(f"{path}: file not found")
+    try:
+        return read_cameras_json(path)
+    except ValueError as exc:
+        raise BadInput(str(exc).splitlines()[0]) from None
+
+
+def _read_image(path: Path, shape: tuple[int, ...]) -> np.ndarray:
+    if not path.is_file():
+        raise BadInput(f"{path}: file not found")
+    try:
+        a = read_exr(path)
+    except Exception as exc:  # OpenEXR raises assorted errors on corrupt files
+        raise BadInput(f"{path}: unreadable EXR ({type(exc).__name__})") from None
+    if a.shape != shape:
+        raise BadInput(f"{path}: shape {a.shape}, expected {shape}")
+    if not np.all(np.isfinite(a)):
+        raise BadInput(f"{path}: non-finite pixels")
+    return a
+
+
+def load_views(capture_dir: Path, cameras: list[Camera]) -> list[CapturedView]:
+    """Linear radiance and z-depth of ``cameras`` from the capture (BadInput on missing files)."""
+    views = []
+    for cam in cameras:
+        k = cam.intrinsics
+        rgb = _read_image(Path(capture_dir) / "linear" / f"{cam.name}.exr", (k.height, k.width, 3))
+        depth = _read_image(Path(capture_dir) / "depth" / f"{cam.name}.exr", (k.height, k.width))
+        views.append(CapturedView(cam, rgb, depth))
+    return views
+
+
+def find_reference(capture_dir: Path, reference_dir: Path | None) -> tuple[Path, str]:
+    """(folder with linear/<view>.exr, its kind): the given reference, the sibling reference stage,
+    or the capture itself."""
+    if reference_dir is not None:
+        if not (Path(reference_dir) / "linear").is_dir():
+            raise BadInput(f"{reference_dir}: no linear/ folder of reference renders")
+        return Path(reference_dir), "reference"
+    sibling = Path(capture_dir).parent / "reference"
+    if (sibling / MANIFEST).is_file() and (sibling / "linear").is_dir():
+        return sibling, "reference"
+    return Path(capture_dir), "capture"
+
+
+def _scene_file(capture_dir: Path) -> Path | None:
+    man = read_json(Path(capture_dir) / MANIFEST) if (Path(capture_dir) / MANIFEST).is_file() else {}
+    for p in man.get("inputs", {}):
+        if p.endswith((".yaml", ".yml")) and Path(p).is_file():
+            return Path(p)
+    return None
+
+
+def _content_points(views: list[CapturedView], min_radiance: float, stride: int = 2) -> np.ndarray:
+    pts = []
+    for v in views:
+        d, rgb = v.depth[::stride, ::stride], v.rgb[::stride, ::stride]
+        ii, jj = np.nonzero((d > 0) & (rgb.max(axis=2) > min_radiance))
+        if len(ii) == 0:
+            continue
+        o, r = v.camera.pixel_rays(np.stack([jj * stride + 0.5, ii * stride + 0.5], axis=1))
+        z = d[ii, jj].astype(np.float64)
+        pts.append(o + r * (z / (r @ v.camera.cam_to_world[:3, 2]))[:, None])
+    if not pts:
+        raise BadInput(f"no captured pixel brighter than min_radiance={min_radiance} has depth: nothing to cover")
+    return np.concatenate(pts)
+
+
+# ------------------------------------------------------------------------------------- building
+
+
+def _direct_renderer(scene_file: Path, config: SlabStageConfig):
+    """A render(camera) -> (rgb, depth) callback over the rig's renderer for the scene, plus a
+    closer. One rasterizer context per image size."""
+    from rig.build import load_scene
+    from rig.capture import plan_capture
+
+    rig = load_scene(scene_file)
+    plan = plan_capture(rig)
+    if plan.renderer == "raster":
+        from rig.raster import RasterRenderer
+
+        renderers: dict[tuple[int, int], RasterRenderer] = {}
+
+        def render(cam: Camera):
+            size = (cam.intrinsics.width, cam.intrinsics.height)
+            if size not in renderers:
+                for r in renderers.values():
+                    r.close()
+                renderers.clear()
+                renderers[size] = RasterRenderer(rig.scene, *size)
+            f = renderers[size].render(cam)
+            return f.rgb, f.depth
+
+        def close():
+            for r in renderers.values():
+                r.close()
+    else:
+        from render import pathtracer
+
+        settings = pathtracer.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed)
+
+        def render(cam: Camera):
+            res = pathtracer.render(rig.scene, cam, settings)
+            depth, _ = pathtracer.depth_and_mask(rig.scene, cam)
+            return res.mean, depth
+
+        def close():
+            pass
+    return rig, plan.renderer, render, close
+
+
+def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_dir: Path | None = None,
+                quiet: bool = True) -> tuple[list[LightSlab], dict]:
+    """Fit the layout to the capture and acquire the slabs into ``folder``; returns the slabs and
+    build figures (bounds, renderer, build time, coverage for ``rebin``)."""
+    capture_dir = Path(capture_dir)
+    cams, splits = _cameras(poses_dir if poses_dir is not None else capture_dir)
+    train = [c for c, s in zip(cams, splits) if s == "train"]
+    if not train:
+        raise BadInput(f"{(poses_dir or capture_dir) / 'cameras.json'}: no train cameras")
+    views = load_views(capture_dir, train)
+    bounds = content_bounds(_content_points(views, config.min_radiance))
+    scene_file = _scene_file(capture_dir)
+    up = np.array([0.0, 0.0, 1.0])
+    info: dict = {"bounds": bounds.tolist()}
+    t0 = time.perf_counter()
+    if config.method == "direct":
+        if scene_file is None:
+            raise BadInput(f"{capture_dir / MANIFEST}: names no readable scene file (direct acquisition renders the scene)")
+        rig, renderer, render, close = _direct_renderer(scene_file, config)
+        up = np.asarray(rig.scene.up, dtype=np.float64)
+        geoms = slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+        K, F = config.direct.uv_supersample, config.direct.st_supersample
+        per_uv = K * K + (1 if K % 2 == 0 else 0)
+        total = sum(g.shape[0] * g.shape[1] for g in geoms) * per_uv
+        try:
+            with progress_bar(quiet) as bar:
+                task = bar.add_task("slab: direct", total=total, info=renderer)
+                slabs = acquire_direct(geoms, render, folder, config.direct, lambda n: bar.advance(task, n))
+        finally:
+            close()
+        info.update(renderer=renderer, renders=total)
+    else:
+        if scene_file is not None:
+            from rig.spec import load_spec
+
+            up = np.asarray(load_spec(scene_file)[0].up, dtype=np.float64)
+        geoms = slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+        bg = _background(views)
+        with progress_bar(quiet) as bar:
+            task = bar.add_task("slab: rebin", total=sum(g.shape[0] * g.shape[1] for g in geoms), info="")
+            try:
+                slabs, stats = rebin_slabs(geoms, views, folder, config.rebin, bg, lambda n: bar.advance(task, n))
+            except ValueError as exc:
+                raise BadInput(f"rebinning failed: {str(exc).splitlines()[0]}") from None
+        info.update(stats.to_dict(), background=bg.tolist())
+    info["build_s"] = round(time.perf_counter() - t0, 3)
+    info["slabs"] = {s.geometry.name: {"shape": list(s.geometry.shape), "bytes": s.nbytes} for s in slabs}
+    info["bytes"] = int(sum(s.nbytes for s in slabs))
+    info["radiance_bytes"] = int(sum(s.radiance.nbytes for s in slabs))
+    return slabs, info
+
+
+def _background(views: list[CapturedView]) -> np.ndarray:
+    """Median radiance of the pixels that saw nothing (the scene's background), black if none."""
+    samples = [v.rgb[v.depth == 0][::97] for v in views]
+    s = np.concatenate(samples) if samples else np.zeros((0, 3))
+    return np.median(s, axis=0).astype(np.float32) if len(s) else np.zeros(3, np.float32)
+
+
+# ------------------------------------------------------------------------------------- evaluation
+
+
+def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: list[np.ndarray],
+                   modes=MODES, background=(0.0, 0.0, 0.0)) -> tuple[dict, dict]:
+    """Render every camera in every mode; returns ``(metrics per mode, images per mode)`` with
+    metrics {mode: {"per_view": {view: {"psnr", "ssim"}}, "psnr_mean", "ssim_mean", "render_s"}}."""
+    metrics, images = {}, {}
+    for mode in modes:
+        per_view, imgs, t = {}, {}, 0.0
+        for cam, ref in zip(cameras, references):
+            t0 = time.perf_counter()
+            img = render_view(slabs, cam, mode, background)
+            t += time.perf_counter() - t0
+            per_view[cam.name] = {"psnr": psnr(img, ref), "ssim": ssim(img, ref)}
+            imgs[cam.name] = img
+        metrics[mode] = {"per_view": per_view,
+                         "psnr_mean": float(np.mean([m["psnr"] for m in per_view.values()])),
+                         "ssim_mean": float(np.mean([m["ssim"] for m in per_view.values()])),
+                         "render_s_per_view": t / max(len(cameras), 1)}
+        images[mode] = imgs
+    return metrics, images
+
+
+def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabStageConfig = SlabStageConfig(),
+             reference_dir: Path | None = None, quiet: bool = False) -> dict:
+    """Build slabs from ``capture_dir`` into ``out`` (atomically), render the held-out views in
+    every interpolation mode and score them; returns the manifest."""
+    capture_dir = Path(capture_dir)
+    if not capture_dir.is_dir():
+        raise BadInput(f"{capture_dir}: no such capture folder")
+    cams, splits = _cameras(capture_dir)
+    test = [c for c, s in zip(cams, splits) if s == "test"]
+    if not test:
+        raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
+    ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
+    refs = [_read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
+            for c in test]
+    params = {"method": config.method, "mode": config.mode, "layout": asdict(config.layout),
+              "direct": asdict(config.direct), "rebin": asdict(config.rebin), "min_radiance": config.min_radiance,
+              "reference": ref_kind}
+    manifest = Manifest("slab", params=params)
+    manifest.add_input(capture_dir / "cameras.json")
+    if poses_dir is not None:
+        manifest.add_input(Path(poses_dir) / "cameras.json")
+    for c in test:
+        manifest.add_input(ref_dir / "linear" / f"{c.name}.exr")
+    with atomic_stage(out) as tmp:
+        slabs, info = build_slabs(capture_dir, tmp / "slabs", config, poses_dir, quiet)
+        slabs = load_slabs(tmp / "slabs")  # memory-mapped read-only, as a reader will see them
+        bg = np.asarray(info.get("background", (0.0, 0.0, 0.0)), np.float32)
+        with progress_bar(quiet) as bar:
+            task = bar.add_task("slab: render held-out views", total=len(MODES), info="")
+            by_mode, images = {}, {}
+            for mode in MODES:
+                m, im = evaluate_views(slabs, test, refs, (mode,), bg)
+                by_mode.update(m)
+                images.update(im)
+                bar.advance(task)
+        for cam, ref in zip(test, refs):
+            img = images[config.mode][cam.name]
+            write_exr(tmp / "renders" / f"{cam.name}.exr", img)
+            write_preview(tmp / "renders" / f"{cam.name}.png", img)
+            err = np.abs(img - ref)
+            write_exr(tmp / "errors" / f"{cam.name}.exr", err)
+            write_png(tmp / "errors" / f"{cam.name}.png", to_srgb8(np.repeat(err.mean(2, keepdims=True), 3, 2), 8.0))
+            for mode in MODES:
+                write_preview(tmp / "modes" / mode / f"{cam.name}.png", images[mode][cam.name])
+        primary = by_mode[config.mode]
+        metrics = {"mode": config.mode, "method": config.method, "reference": ref_kind,
+                   "per_view": primary["per_view"], "psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
+                   "modes": by_mode, "build": info}
+        write_json(tmp / "metrics.json", metrics)
+        manifest.metrics = {"psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
+                            "mode": config.mode, "slab_bytes": info["bytes"], "build_s": info["build_s"],
+                            **({"coverage": info["coverage"]} if "coverage" in info else {}),
+                            **{f"psnr_{m}": by_mode[m]["psnr_mean"] for m in MODES}}
+        result = manifest.write(tmp)
+    return result
+
+
+if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph slab`
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("capture_dir", type=Path)
+    ap.add_argument("--poses", type=Path)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--method", default="direct")
+    ap.add_argument("--uv-res", type=int, default=16)
+    ap.add_argument("--st-res", type=int, default=192)
+    ap.add_argument("--reference", type=Path)
+    a = ap.parse_args()
+    cfg = SlabStageConfig(method=a.method, layout=LayoutConfig(uv_res=a.uv_res, st_res=a.st_res))
+    m = run_slab(a.capture_dir, a.poses, a.out, cfg, a.reference)
+    print({k: v for k, v in m["metrics"].items()})
