@@ -22,14 +22,16 @@ def contact_sheet(images: list[Path], out: Path, thumb: int = 160, columns: int 
         raise BadInput("no PNG images to put on a contact sheet")
     rows = (len(images) + columns - 1) // columns
     label_h = 14
-    sheet = Image.new("RGB", (columns * thumb, rows * (thumb + label_h)), (24, 24, 24))
+    with Image.open(images[0]) as first:  # cells take the first image's aspect ratio
+        cell_h = max(1, round(thumb * first.height / first.width))
+    sheet = Image.new("RGB", (columns * thumb, rows * (cell_h + label_h)), (24, 24, 24))
     draw = ImageDraw.Draw(sheet)
     for i, path in enumerate(images):
         im = Image.open(path).convert("RGB")
-        im.thumbnail((thumb, thumb))
-        x, y = (i % columns) * thumb, (i // columns) * (thumb + label_h)
-        sheet.paste(im, (x + (thumb - im.width) // 2, y + (thumb - im.height) // 2))
-        draw.text((x + 3, y + thumb), path.stem[:24], fill=(220, 220, 220))
+        im.thumbnail((thumb, cell_h))
+        x, y = (i % columns) * thumb, (i // columns) * (cell_h + label_h)
+        sheet.paste(im, (x + (thumb - im.width) // 2, y + (cell_h - im.height) // 2))
+        draw.text((x + 3, y + cell_h), path.stem[:24], fill=(220, 220, 220))
     tmp = out.with_name(f".{out.name}.partial")
     sheet.save(tmp, format="PNG")
     tmp.replace(out)

@@ -1,0 +1,134 @@
+"""The CLI contract: bad input exits 2 with one line and writes nothing; captures are atomic,
+deterministic, and readable by `inspect`."""
+import copy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.artifacts import read_manifest
+from pipeline.cli import main
+from render.camera_io import read_cameras_json, read_colmap_text, read_transforms_json
+from render.image_io import read_exr, read_png
+
+from .conftest import TINY_SCENE, write_scene
+
+
+def _leftovers(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if ".partial" in p.name] if folder.exists() else []
+
+
+def test_malformed_scene_exits_2_with_one_line_and_writes_nothing(tmp_path):
+    bad = copy.deepcopy(TINY_SCENE)
+    bad["cameras"]["intrinsics"]["width"] = -64
+    scene = write_scene(tmp_path / "scenes", bad)
+    out = tmp_path / "out" / "capture"
+    proc = subprocess.run([sys.executable, "-m", "pipeline", "capture", str(scene), "--out", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cameras.intrinsics.width" in lines[0] and "tiny.yaml" in lines[0]
+    assert not out.exists() and not _leftovers(tmp_path / "out")
+
+
+def test_missing_scene_file_exits_2(tmp_path, capsys):
+    assert main(["capture", str(tmp_path / "nope.yaml"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.yaml" in err[0]
+
+
+def test_inspect_of_a_non_stage_folder_exits_2(tmp_path, capsys):
+    assert main(["inspect", str(tmp_path)]) == 2
+    assert "manifest.json" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def tiny_capture(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cap")
+    scene = write_scene(root / "scenes", TINY_SCENE)
+    out = root / "capture"
+    assert main(["capture", str(scene), "--out", str(out), "--quiet", "--seed", "3"]) == 0
+    return scene, out
+
+
+def test_capture_folder_is_complete_and_consistent(tiny_capture):
+    scene, out = tiny_capture
+    m = read_manifest(out)
+    assert m["stage"] == "capture" and m["params"]["renderer"] == "raster"
+    cams, splits = read_cameras_json(out / "cameras.json")
+    assert splits.count("train") == 4 and splits.count("test") == 2
+    for cam in cams:
+        rgb = read_exr(out / "linear" / f"{cam.name}.exr")
+        depth = read_exr(out / "depth" / f"{cam.name}.exr")
+        mask = read_png(out / "masks" / f"{cam.name}.png")
+        assert rgb.shape == (48, 64, 3) and depth.shape == (48, 64) and mask.shape == (48, 64)
+        assert np.isfinite(rgb).all() and rgb.min() >= 0 and 0.1 < rgb.max() < 2.0 and rgb.mean() > 0.002
+        assert (out / "images" / f"{cam.name}.png").is_file()
+        # the subject is in the middle of every view and the depth there is about the distance
+        assert mask[24, 32] == 255 and 0.6 < depth[24, 32] < 0.8
+    # the three camera formats describe the same cameras
+    colmap = {c.name: c for c in read_colmap_text(out / "colmap")}
+    train = read_transforms_json(out / "transforms_train.json")
+    for cam in cams:
+        assert np.allclose(colmap[cam.name].cam_to_world, cam.cam_to_world, atol=1e-9)
+    assert [c.name for c in train] == [c.name for c, s in zip(cams, splits) if s == "train"]
+    assert set(m["outputs"]) >= {"cameras.json", "targets.json", "colmap/images.txt"}
+    assert not _leftovers(out.parent)
+
+
+def test_same_seed_gives_byte_identical_capture(tiny_capture, tmp_path):
+    scene, out = tiny_capture
+    again = tmp_path / "again"
+    assert main(["capture", str(scene), "--out", str(again), "--quiet", "--seed", "3"]) == 0
+    assert read_manifest(again)["outputs"] == read_manifest(out)["outputs"]
+
+
+def test_noise_is_seeded(tmp_path):
+    noisy = copy.deepcopy(TINY_SCENE)
+    noisy["sensor"] = {"noise": [2000.0, 0.002]}
+    scene = write_scene(tmp_path / "scenes", noisy)
+    outs = {}
+    for tag, seed in (("a", 1), ("b", 1), ("c", 2)):
+        outs[tag] = tmp_path / tag
+        assert main(["capture", str(scene), "--out", str(outs[tag]), "--quiet", "--seed", str(seed)]) == 0
+    a, b, c = (read_manifest(outs[t])["outputs"]["linear/train_000.exr"] for t in "abc")
+    assert a == b and a != c
+    assert "noise" in read_manifest(outs["a"])["params"]["effects"]
+
+
+def test_interrupted_capture_leaves_nothing_that_looks_finished(tmp_path, monkeypatch):
+    import pipeline.stages.capture as stage
+
+    scene = write_scene(tmp_path / "scenes", TINY_SCENE)
+    calls = {"n": 0}
+    real = stage.write_exr
+
+    def failing_write(path, image):
+        calls["n"] += 1
+        if calls["n"] > 5:
+            raise RuntimeError("disk full (simulated)")
+        real(path, image)
+
+    monkeypatch.setattr(stage, "write_exr", failing_write)
+    out = tmp_path / "arts" / "capture"
+    with pytest.raises(RuntimeError, match="simulated"):
+        main(["capture", str(scene), "--out", str(out), "--quiet"])
+    assert not out.exists() and not _leftovers(tmp_path / "arts")
+
+
+def test_inspect_shows_the_folder_and_flags_changed_files(tiny_capture, tmp_path, capsys):
+    import shutil
+
+    _, out = tiny_capture
+    copy_dir = tmp_path / "capture"
+    shutil.copytree(out, copy_dir)
+    assert main(["inspect", str(copy_dir)]) == 0
+    text = capsys.readouterr().out
+    assert "capture" in text and "integrity" in text and "ok" in text
+    sheet = read_png(copy_dir / "contact_sheet.png")
+    assert sheet.ndim == 3 and sheet.shape[0] > 0 and sheet[..., :3].std() > 5
+    (copy_dir / "images" / "train_000.png").write_bytes(b"not a png")
+    assert main(["inspect", str(copy_dir), "--no-sheet"]) == 0
+    assert "1 changed" in capsys.readouterr().out

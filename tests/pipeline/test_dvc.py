@@ -1,0 +1,36 @@
+"""`dvc repro` runs the project's dvc.yaml for real (local cache only, no remote)."""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+from pipeline.artifacts import read_manifest
+
+from .conftest import TINY_SCENE, write_scene
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_dvc_repro_runs_the_capture_stage_and_is_then_up_to_date(tmp_path):
+    work = tmp_path / "proj"
+    work.mkdir()
+    shutil.copy(REPO / "dvc.yaml", work)
+    for pkg in ("render", "rig"):  # the stage's code dependencies
+        shutil.copytree(REPO / pkg, work / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    write_scene(work / "scenes", TINY_SCENE)
+    (work / "params.yaml").write_text(yaml.safe_dump({"scene": "tiny", "seed": 0}))
+    bin_dir = Path(sys.executable).parent
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "DVC_NO_ANALYTICS": "1"}
+    dvc = [str(bin_dir / "dvc")]
+    run = lambda *a: subprocess.run(dvc + list(a), cwd=work, env=env, capture_output=True, text=True, timeout=300)
+    assert run("init", "--no-scm", "-q").returncode == 0
+    first = run("repro")
+    assert first.returncode == 0, first.stderr + first.stdout
+    m = read_manifest(work / "artifacts" / "tiny" / "capture")
+    assert m["stage"] == "capture" and m["metrics"]["views"] == 6
+    assert (work / "dvc.lock").is_file()
+    second = run("repro")
+    assert second.returncode == 0 and "didn't change" in second.stdout + second.stderr
