@@ -94,7 +94,8 @@ class RasterFrame:
 
     rgb: (H, W, 3) float32 linear radiance in scene units (render/scene.py).
     depth: (H, W) float32 z-depth along the camera's optical axis (not ray length), scene
-    units; 0 where nothing was hit (less than half the pixel's samples hit geometry).
+    units, at the pixel centre; 0 where nothing was hit (less than half the pixel's samples hit
+    geometry). Where two surfaces share a pixel it is their coverage-weighted mean.
     mask: (H, W) bool, pixels at least half covered by objects with ``is_subject=True``.
     """
 
@@ -400,11 +401,14 @@ class RasterRenderer:
 
         self._offscreen = pyrender.OffscreenRenderer(self.width, self.height)
         self._platform = self._offscreen._platform
-        self._platform.make_current()
+        self._gl = _RadianceGLRenderer(self.width, self.height, defines, samples)
+        self._offscreen._renderer = self._gl  # ours replaces the stock Renderer (nothing uploaded yet)
         try:
-            self._gl = _RadianceGLRenderer(self.width, self.height, defines, samples)
-            self._offscreen._renderer = self._gl  # the offscreen wrapper now owns and deletes ours
+            self._platform.make_current()
             self._upload(spots, dirs, points)
+        except BaseException:
+            self.close()
+            raise
         finally:
             self._platform.make_uncurrent()
 
@@ -608,10 +612,27 @@ class RasterRenderer:
 
     # -- lifetime --------------------------------------------------------------------------------
     def close(self) -> None:
-        """Free the GL context and everything uploaded to it (idempotent)."""
-        if getattr(self, "_offscreen", None) is not None:
-            self._offscreen.delete()
-            self._offscreen = None
+        """Free the GL context and everything uploaded to it (idempotent).
+
+        Other renderers in the process keep working: pyrender's EGL platform would call
+        eglTerminate on the display all its contexts share, so only our context is destroyed.
+        """
+        offscreen = getattr(self, "_offscreen", None)
+        if offscreen is None:
+            return
+        self._offscreen = None
+        platform = offscreen._platform
+        platform.make_current()
+        self._gl.delete()
+        if getattr(platform, "_egl_context", None) is not None:
+            from OpenGL import EGL
+
+            EGL.eglMakeCurrent(platform._egl_display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+            EGL.eglDestroyContext(platform._egl_display, platform._egl_context)
+            platform._egl_context = platform._egl_display = None
+        else:
+            platform.delete_context()
+        offscreen._renderer = offscreen._platform = None  # its __del__ then has nothing to free
 
     def __enter__(self) -> "RasterRenderer":
         return self

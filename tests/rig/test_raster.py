@@ -327,3 +327,17 @@ def test_refuses_what_it_cannot_rasterize(geo):
     with pytest.raises(ValueError, match="outer_angle"):
         RasterRenderer(Scene("w", [plane], lights=[SpotLight([0, 0, 1], [0, 0, -1], [1.0] * 3,
                                                             np.radians(80), np.radians(88))]), 8, 8)
+
+
+def test_closing_one_renderer_keeps_others_alive(geo):
+    """pyrender's EGL teardown terminates the display every context shares; ours must not."""
+    from rig.raster import RasterRenderer
+
+    scene = Scene("s", [SceneObject("plane", geo.quad_mesh(-2, 2, -2, 2), Lambertian(0.5))],
+                  lights=[SpotLight([0, 0, 2], [0, 0, -1], [5.0] * 3)])
+    cam = geo.camera_at([0, -2, 2], [0, 0, 0], 32, 24)
+    with RasterRenderer(scene, 32, 24) as a:
+        before = a.render(cam).rgb
+        RasterRenderer(scene, 32, 24).close()
+        assert np.array_equal(a.render(cam).rgb, before)
+    a.close()  # idempotent
