@@ -85,7 +85,7 @@ class RenderSettings:
     strategy: str = "mis"
     heuristic: str = "power"
     threads: int = 2
-    batch_paths: int = 1 << 16
+    batch_paths: int = 1 << 14
 
     def __post_init__(self):
         if self.integrator not in ("auto", "direct", "path"):

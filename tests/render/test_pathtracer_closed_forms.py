@@ -10,7 +10,8 @@ from ptutil import disk, image_mean_and_se, probe_camera, quad, receiver_box
 from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.pathtracer import RenderSettings, render
-from render.scene import DirectionalLight, Emissive, PointLight, Scene, SceneObject, SpotLight
+from render.poses import look_at
+from render.scene import Dielectric, DirectionalLight, Emissive, Mirror, PointLight, Scene, SceneObject, SpotLight
 
 RHO = np.array([0.5, 0.5, 0.5])
 LE = np.array([1.0, 2.0, 0.5])
@@ -171,3 +172,29 @@ def test_directional_light_irradiance():
     r = render(sc, cam, RenderSettings(spp=64, seed=16))
     cos = 1.0 / np.linalg.norm(direction)
     _check(r, RHO * E * cos / np.pi, rel_floor=1e-6)
+
+
+# ------------------------------------------------------------------ specular furnaces
+def _env_scene(obj):
+    return Scene("env", [obj], background=np.array([0.5, 1.0, 2.0]))
+
+
+@pytest.mark.parametrize("integrator", ["direct", "path"])
+def test_glass_in_uniform_environment_is_invisible(integrator):
+    """A lossless glass cube in a uniform environment L_bg: every pixel sees L_bg (Fresnel
+    reflection and refraction, TIR and the eta^2 radiance scaling all cancel on exit)."""
+    cube = trimesh.creation.box([1.0, 1.0, 1.0])
+    cube.apply_transform(trimesh.transformations.rotation_matrix(0.4, [1, 1, 0]))
+    sc = _env_scene(SceneObject("glass", cube, Dielectric(1.5)))
+    cam = Camera(Intrinsics.from_fov(8, 8, 30.0), look_at([0, -3.0, 0.3], [0, 0, 0], [0, 0, 1]), "v")
+    r = render(sc, cam, RenderSettings(integrator=integrator, spp=512, max_depth=64, seed=17))
+    _check(r, sc.background)
+
+
+def test_mirror_sphere_in_uniform_environment():
+    """A convex mirror of reflectance R in a uniform environment: pixels on it see R L_bg."""
+    R = np.array([0.9, 0.5, 0.2])
+    sc = _env_scene(SceneObject("mirror", trimesh.creation.icosphere(3, 1.0), Mirror(R)))
+    cam = probe_camera(np.zeros(3), [0, -4.0, 0.0], size=4, fov_deg=5.0)
+    r = render(sc, cam, RenderSettings(spp=16, seed=18))
+    _check(r, R * sc.background, rel_floor=1e-6)
