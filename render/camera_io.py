@@ -46,7 +46,7 @@ __all__ = [
 ]
 
 #: the split labels ``cameras.json`` accepts
-SPLITS = ("train", "test")
+SPLITS = ("train", "test", "scene")  # "scene": a scene's own camera(s), e.g. the Cornell box's
 CAMERAS_JSON_FORMAT = "lumigraph.cameras/1"
 
 _CONVENTION = {
@@ -131,7 +131,7 @@ def write_cameras_json(path, cameras: Sequence[Camera], splits: Sequence[str]) -
     """Write ``cameras.json`` (lossless: floats are written with Python's round-trip repr).
 
     cameras: N :class:`Camera` with unique names, poses camera-to-world in OpenCV axes.
-    splits: N split labels, one per camera, each in :data:`SPLITS` (``"train"`` or ``"test"``).
+    splits: N split labels, one per camera, each in :data:`SPLITS` (``"train"``, ``"test"`` or ``"scene"``).
     """
     cams = _check_cameras(cameras)
     _check_unique_names(cams)

@@ -65,8 +65,7 @@ def raster_limitations(scene: Scene, effects: frozenset[str]) -> list[str]:
     """Reasons the rasterizer cannot render ``scene`` exactly with ``effects``; empty if it can."""
     reasons = [f"effect '{e}' needs the path tracer" for e in sorted(effects - RASTER_EFFECTS)]
     for o in scene.objects:
-        if not isinstance(o.material, Lambertian) and not (
-                isinstance(o.material, Emissive) and "direct" not in effects):
+        if not isinstance(o.material, Lambertian):
             reasons.append(f"object '{o.name}': {type(o.material).__name__} material needs the path tracer")
     if "shadows" in effects and any(isinstance(l, PointLight) for l in scene.lights):
         reasons.append("point-light shadows are not simulated by the rasterizer (use spot lights)")

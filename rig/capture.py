@@ -13,7 +13,8 @@ from typing import Iterator
 import numpy as np
 
 from render.camera import Camera, Intrinsics
-from render.effects import raster_limitations, scene_effects
+from render.effects import SENSOR_EFFECTS, raster_limitations, scene_effects
+from render.scene import DirectionalLight, PointLight, SpotLight
 
 from .build import RigScene
 
@@ -64,20 +65,28 @@ def plan_capture(rig: RigScene) -> CapturePlan:
     return CapturePlan("pathtracer" if reasons else "raster", effects, reasons)
 
 
+def _has_delta_lights(rig: RigScene) -> bool:
+    return any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in rig.scene.lights)
+
+
 def _ideal(k: Intrinsics) -> Intrinsics:
     return Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
 
 
 def _pathtraced_views(rig: RigScene, views, plan: CapturePlan, spp: int, seed: int):
-    try:
-        from render import pathtracer
-    except ImportError:
-        raise CaptureError(f"scene '{rig.scene.name}' needs the path tracer ({'; '.join(plan.reasons)}), "
-                           "which is not available in this build") from None
+    from render import pathtracer
+    from render.gbuffer import first_hit_buffers
+
     settings = pathtracer.RenderSettings(integrator="auto", spp=spp, seed=seed)
+    try:
+        pathtracer.choose_integrator(plan.effects - frozenset(SENSOR_EFFECTS), "auto", _has_delta_lights(rig))
+    except ValueError as exc:
+        raise CaptureError(f"scene '{rig.scene.name}': {exc}") from None
+    prepared = pathtracer.prepare(rig.scene)
     for split, cam in views:
-        result = pathtracer.render(rig.scene, Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name), settings)
-        depth, mask = pathtracer.depth_and_mask(rig.scene, Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name))
+        ideal = Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name)
+        result = pathtracer.render(rig.scene, ideal, settings, effects=plan.effects - frozenset(SENSOR_EFFECTS), prepared=prepared)
+        depth, mask = first_hit_buffers(rig.scene, ideal, prepared.accel)
         yield split, cam, result.mean, depth, mask
 
 

@@ -20,7 +20,7 @@ from rig.build import RigScene
 from rig.capture import capture_views, plan_capture
 
 from ..artifacts import Manifest, atomic_stage, write_json
-from ..progress import progress_bar
+from ..progress import console, progress_bar
 
 __all__ = ["run_capture", "SPLITS"]
 
@@ -35,6 +35,9 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
     manifest = Manifest("capture", params={"scene": rig.scene.name, "seed": seed, "renderer": plan.renderer,
                                            "effects": sorted(plan.effects), "splits": list(splits)})
     manifest.add_input(scene_file)
+    if plan.renderer != "raster" and not quiet:
+        console.print(f"capture: '{rig.scene.name}' is path traced, the rasterizer cannot simulate it exactly: "
+                      + "; ".join(plan.reasons))
     n_views = sum(len(rig.cameras[s]) for s in splits)
     cameras, split_of = [], []
     with atomic_stage(out) as tmp, progress_bar(quiet) as bar:
