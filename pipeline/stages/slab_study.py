@@ -1,0 +1,155 @@
+"""What accuracy costs: slab resolution x interpolation mode -> PSNR, SSIM, memory, render time.
+
+One command builds the slab set of a capture at every (uv_res, st_res) of a grid (direct
+acquisition by default, or rebinning), renders the held-out views in every interpolation mode,
+and writes::
+
+    <out>/study.csv      one row per (uv_res, st_res, mode): psnr, ssim, slab MB, render ms at the
+                         capture size and at 256x256, build s
+    <out>/study.svg      PSNR against slab memory, one line per interpolation mode
+    <out>/study.json     the same rows plus the machine and the grid
+    <out>/manifest.json
+
+Slabs are built in a scratch folder inside the stage folder and deleted after each grid point
+(the study keeps only the figures). Run it as
+``.venv/bin/python -m pipeline.stages.slab_study artifacts/turntable/capture --out artifacts/turntable/slab_study``.
+"""
+from __future__ import annotations
+
+import csv
+import shutil
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from render.camera import Camera, Intrinsics
+from render.slab import MODES, render_view
+from render.slab_io import load_slabs
+
+from ..artifacts import BadInput, Manifest, atomic_stage, write_json
+from .slab import SlabStageConfig, _cameras, _read_image, build_slabs, evaluate_views, find_reference
+
+__all__ = ["run_slab_study", "svg_plot", "DEFAULT_UV", "DEFAULT_ST"]
+
+DEFAULT_UV = (8, 16, 24)
+DEFAULT_ST = (96, 192, 256)
+_COLOURS = {"nearest": "#d62728", "uv": "#ff7f0e", "st": "#9467bd", "quadrilinear": "#1f77b4", "depth": "#2ca02c"}
+
+
+def _fps_256(slabs, cam: Camera, mode: str, repeats: int = 3) -> float:
+    """Median milliseconds of one 256x256 frame of ``cam``'s pose (40 degree vertical field)."""
+    c = Camera(Intrinsics.from_fov(256, 256, 40.0), cam.cam_to_world, cam.name)
+    render_view(slabs, c, mode)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        render_view(slabs, c, mode)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times) * 1e3)
+
+
+def svg_plot(rows: list[dict], width: int = 640, height: int = 420) -> str:
+    """A dependency-free SVG: mean PSNR (dB) against slab memory (MB, log scale), per mode."""
+    mb = np.array([r["slab_mb"] for r in rows], float)
+    ps = np.array([r["psnr"] for r in rows], float)
+    x0, x1 = np.log10(mb.min()) - 0.05, np.log10(mb.max()) + 0.05
+    y0, y1 = np.floor(ps.min()) - 0.5, np.ceil(ps.max()) + 0.5
+    L, R, T, B = 60, 130, 20, 50
+    X = lambda m: L + (np.log10(m) - x0) / (x1 - x0) * (width - L - R)  # noqa: E731
+    Y = lambda p: height - B - (p - y0) / (y1 - y0) * (height - T - B)  # noqa: E731
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" font-size="11">',
+           f'<rect width="{width}" height="{height}" fill="white"/>',
+           f'<line x1="{L}" y1="{height - B}" x2="{width - R}" y2="{height - B}" stroke="black"/>',
+           f'<line x1="{L}" y1="{T}" x2="{L}" y2="{height - B}" stroke="black"/>',
+           f'<text x="{(L + width - R) / 2}" y="{height - 12}" text-anchor="middle">slab memory (MB, log scale)</text>',
+           f'<text x="14" y="{(T + height - B) / 2}" transform="rotate(-90 14 {(T + height - B) / 2})" '
+           f'text-anchor="middle">mean PSNR of held-out views (dB)</text>']
+    for p in np.arange(y0 + 0.5, y1, 1.0 if y1 - y0 < 12 else 2.0):
+        out.append(f'<text x="{L - 6}" y="{Y(p) + 4:.1f}" text-anchor="end">{p:.0f}</text>')
+    for m in sorted(set(mb)):
+        out.append(f'<text x="{X(m):.1f}" y="{height - B + 14}" text-anchor="middle">{m:.0f}</text>')
+    for i, mode in enumerate(MODES):
+        pts = sorted((r["slab_mb"], r["psnr"], r["uv_res"], r["st_res"]) for r in rows if r["mode"] == mode)
+        if not pts:
+            continue
+        c = _COLOURS.get(mode, "black")
+        for uv in sorted({p[2] for p in pts}):  # one polyline per uv resolution (st grows along it)
+            line = [p for p in pts if p[2] == uv]
+            out.append('<polyline fill="none" stroke="{}" stroke-width="1.5" points="{}"/>'.format(
+                c, " ".join(f"{X(m):.1f},{Y(p):.1f}" for m, p, _, _ in line)))
+        for m, p, uv, st in pts:
+            out.append(f'<circle cx="{X(m):.1f}" cy="{Y(p):.1f}" r="3" fill="{c}"><title>{mode} uv{uv} st{st}: '
+                       f'{p:.2f} dB, {m:.0f} MB</title></circle>')
+        out.append(f'<rect x="{width - R + 10}" y="{T + 16 * i}" width="10" height="10" fill="{c}"/>'
+                   f'<text x="{width - R + 25}" y="{T + 16 * i + 9}">{mode}</text>')
+    out.append("</svg>")
+    return "\n".join(out) + "\n"
+
+
+def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAULT_ST,
+                   config: SlabStageConfig = SlabStageConfig(), reference_dir: Path | None = None,
+                   quiet: bool = False) -> dict:
+    """Build and score every grid point; returns the manifest (see the module docstring)."""
+    capture_dir = Path(capture_dir)
+    cams, splits = _cameras(capture_dir)
+    test = [c for c, s in zip(cams, splits) if s == "test"]
+    if not test:
+        raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
+    ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
+    refs = [_read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
+            for c in test]
+    manifest = Manifest("slab_study", params={"uv_res": list(uv_res), "st_res": list(st_res), "method": config.method,
+                                              "reference": ref_kind})
+    manifest.add_input(capture_dir / "cameras.json")
+    rows = []
+    with atomic_stage(out) as tmp:
+        for uv in uv_res:
+            for st in st_res:
+                cfg = replace(config, layout=replace(config.layout, uv_res=int(uv), st_res=int(st)))
+                scratch = tmp / "scratch"
+                _, info = build_slabs(capture_dir, scratch, cfg, None, quiet)
+                slabs = load_slabs(scratch)
+                metrics, _ = evaluate_views(slabs, test, refs, MODES, info.get("background", (0.0, 0.0, 0.0)))
+                for mode in MODES:
+                    rows.append({"uv_res": int(uv), "st_res": int(st), "mode": mode,
+                                 "psnr": round(metrics[mode]["psnr_mean"], 4), "ssim": round(metrics[mode]["ssim_mean"], 5),
+                                 "slab_mb": round(info["bytes"] / 2**20, 2),
+                                 "radiance_mb": round(info["radiance_bytes"] / 2**20, 2),
+                                 "render_ms_view": round(metrics[mode]["render_s_per_view"] * 1e3, 1),
+                                 "render_ms_256": round(_fps_256(slabs, test[0], mode), 1),
+                                 "build_s": info["build_s"]})
+                del slabs
+                shutil.rmtree(scratch)
+                if not quiet:
+                    best = max((r for r in rows if r["uv_res"] == uv and r["st_res"] == st), key=lambda r: r["psnr"])
+                    print(f"slab study uv{uv} st{st}: {rows[-1]['slab_mb']:.0f} MB, best {best['mode']} "
+                          f"{best['psnr']:.2f} dB, build {info['build_s']:.1f} s", flush=True)
+        with open(tmp / "study.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        (tmp / "study.svg").write_text(svg_plot(rows))
+        write_json(tmp / "study.json", {"rows": rows, "uv_res": list(uv_res), "st_res": list(st_res),
+                                        "reference": ref_kind, "views": [c.name for c in test]})
+        manifest.metrics = {"grid_points": len(uv_res) * len(st_res),
+                            "best": max(rows, key=lambda r: r["psnr"])}
+        result = manifest.write(tmp)
+    return result
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description="slab resolution x interpolation mode study")
+    ap.add_argument("capture_dir", type=Path)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--uv", type=int, nargs="+", default=list(DEFAULT_UV))
+    ap.add_argument("--st", type=int, nargs="+", default=list(DEFAULT_ST))
+    ap.add_argument("--method", default="direct", choices=["direct", "rebin"])
+    ap.add_argument("--reference", type=Path)
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args()
+    m = run_slab_study(a.capture_dir, a.out, a.uv, a.st, SlabStageConfig(method=a.method), a.reference, a.quiet)
+    print(m["metrics"])
