@@ -18,6 +18,7 @@ Run: ``.venv/bin/python -m bench.bench_capture``; writes bench/results/capture.j
 """
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -137,6 +138,7 @@ def main() -> None:
     scene, cams = capture_scene(), capture_cameras()
     gl_poses = [c.cam_to_world @ np.diag([1.0, -1, -1, 1]) for c in cams]  # render.poses.opencv_to_opengl
 
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     ours = RasterRenderer(scene, SIZE, SIZE)
     setup_ours = time.perf_counter() - t0
@@ -188,6 +190,7 @@ def main() -> None:
         "overhead_ratio_no_shadows": round(fps["pyrender_no_shadows"] / fps["ours_no_shadows"], 3),
         "seconds_per_repeat": {k: [round(x, 4) for x in v] for k, v in times.items()},
         "setup_s_ours": round(setup_ours, 3),
+        "load_avg_1min_before_after": [round(load_before, 2), round(os.getloadavg()[0], 2)],
         "notes": "ours: float32 RGBA32F+RG32F 4x MSAA, rgb+depth+mask; pyrender: RGBA8 4x MSAA, uint8 rgb + depth. "
                  "Shadow maps 2048^2 for both.",
     })

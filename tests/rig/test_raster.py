@@ -341,3 +341,19 @@ def test_closing_one_renderer_keeps_others_alive(geo):
         RasterRenderer(scene, 32, 24).close()
         assert np.array_equal(a.render(cam).rgb, before)
     a.close()  # idempotent
+
+
+def test_msaa_edges_are_box_averages_consistent_with_mask_and_depth(geo, render_scene):
+    """A white emitter (Le = 1) over a black background: edge pixels hold the covered fraction
+    of the 4 samples (box filter), and mask and depth agree with it (>= half covered)."""
+    card = geo.quad_mesh(-0.5, 0.5, -0.4, 0.4)
+    card.apply_transform(trimesh.transformations.rotation_matrix(np.radians(17), [0, 0, 1]))
+    scene = Scene("card", [SceneObject("card", card, Emissive(1.0), is_subject=True)])
+    frame = render_scene(scene, geo.camera_at([0, 0, 2.0], [0, 0, 0], fov_y=50.0, up=(0, 1, 0)))
+    v = frame.rgb[..., 0]
+    assert np.array_equal(frame.rgb[..., 1], v) and np.array_equal(frame.rgb[..., 2], v)
+    levels, counts = np.unique(v, return_counts=True)
+    assert set(levels.tolist()) == {0.0, 0.25, 0.5, 0.75, 1.0} and counts.min() > 3
+    assert np.array_equal(frame.mask, v >= 0.5)
+    assert np.array_equal(frame.depth > 0, v >= 0.5)
+    assert np.abs(frame.depth[v >= 0.5] / 2.0 - 1).max() < 1e-5  # partly covered pixels too
