@@ -1,0 +1,78 @@
+"""The slab stage end to end on the tiny scene (64x48, 4 train + 2 test views): the folder
+layout of DESIGN.md, finite metrics for every mode, and bad input as BadInput (exit 2)."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from pipeline.artifacts import BadInput, read_manifest
+from pipeline.stages.slab import SlabStageConfig, run_slab
+from recon.slab import LayoutConfig
+from render.image_io import read_exr
+from render.slab import MODES
+from render.slab_io import load_slabs
+
+from .conftest import TINY_SCENE, write_scene
+
+SMALL = LayoutConfig(count=4, uv_res=4, st_res=24)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    from pipeline.stages.capture import run_capture
+    from rig.build import load_scene
+
+    root = tmp_path_factory.mktemp("slabstage")
+    path = write_scene(root / "scenes", TINY_SCENE)
+    run_capture(load_scene(path), path, root / "tiny" / "capture", quiet=True)
+    return root / "tiny" / "capture"
+
+
+@pytest.mark.parametrize("method", ["direct", "rebin"])
+def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
+    out = tmp_path / "slab"
+    m = run_slab(capture, None, out, SlabStageConfig(method=method, layout=SMALL), quiet=True)
+    assert read_manifest(out)["stage"] == "slab" and m["metrics"]["mode"] == "depth"
+    tests = sorted(p.stem for p in (capture / "linear").glob("test_*.exr"))
+    assert tests and sorted(p.stem for p in (out / "renders").glob("*.exr")) == tests
+    for v in tests:
+        img = read_exr(out / "renders" / f"{v}.exr")
+        assert img.shape == (48, 64, 3) and np.all(np.isfinite(img))
+        assert (out / "renders" / f"{v}.png").is_file() and (out / "errors" / f"{v}.png").is_file()
+        assert all((out / "modes" / mode / f"{v}.png").is_file() for mode in MODES)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["reference"] == "capture" and set(metrics["modes"]) == set(MODES)
+    for mode in MODES:
+        for v in tests:
+            assert np.isfinite(metrics["modes"][mode]["per_view"][v]["psnr"])
+            assert 0 < metrics["modes"][mode]["per_view"][v]["ssim"] <= 1
+    slabs = load_slabs(out / "slabs")
+    assert len(slabs) >= 3 and isinstance(slabs[0].radiance, np.memmap)
+    if method == "rebin":
+        assert 0.5 < metrics["build"]["coverage"] <= 1.0
+
+
+def test_slab_stage_prefers_a_reference_folder(capture, tmp_path):
+    ref = tmp_path / "reference"
+    shutil.copytree(capture / "linear", ref / "linear")
+    out = tmp_path / "slab"
+    run_slab(capture, None, out, SlabStageConfig(layout=SMALL), reference_dir=ref, quiet=True)
+    assert json.loads((out / "metrics.json").read_text())["reference"] == "reference"
+
+
+def test_slab_stage_bad_input(capture, tmp_path):
+    with pytest.raises(BadInput, match="no such capture"):
+        run_slab(tmp_path / "nope", None, tmp_path / "o1", quiet=True)
+    broken = tmp_path / "capture"
+    shutil.copytree(capture, broken)
+    victim = sorted((broken / "linear").glob("train_*.exr"))[0]
+    victim.unlink()
+    with pytest.raises(BadInput, match=victim.name):
+        run_slab(broken, None, tmp_path / "o2", SlabStageConfig(layout=SMALL), quiet=True)
+    assert not (tmp_path / "o2").exists()  # nothing half-written
+    (broken / "cameras.json").write_text("{")
+    with pytest.raises(BadInput, match="cameras.json"):
+        run_slab(broken, None, tmp_path / "o3", quiet=True)
+    with pytest.raises(BadInput, match="linear"):
+        run_slab(capture, None, tmp_path / "o4", SlabStageConfig(layout=SMALL), reference_dir=tmp_path, quiet=True)
