@@ -41,6 +41,27 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
 
 
 @app.command()
+def reference(scene: str = typer.Argument(..., help="built-in scene name or path to a scene YAML"),
+              spp: int = typer.Option(64, help="samples per pixel"),
+              size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
+              views: str = typer.Option("test", help="test (held-out views) | all | scene (the scene's own camera)"),
+              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path"),
+              seed: int = typer.Option(0, help="render seed"),
+              max_depth: int = typer.Option(8, help="maximum bounces"),
+              out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
+              root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+              quiet: bool = QUIET):
+    """Path-traced reference renders of a scene's views, with per-pixel variance images."""
+    from .stages.reference import run_reference
+
+    rig, path = _load(scene)
+    out = out or stage_dir(rig.scene.name, "reference", root)
+    m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet)
+    typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
+               f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
+
+
+@app.command()
 def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
             no_sheet: bool = typer.Option(False, "--no-sheet", help="skip the contact sheet")):
     """Show what a stage folder holds: a table, and a contact sheet PNG of its previews."""

@@ -14,14 +14,17 @@ from .conftest import TINY_SCENE, write_scene
 REPO = Path(__file__).resolve().parents[2]
 
 
-def test_dvc_repro_runs_the_capture_stage_and_is_then_up_to_date(tmp_path):
+def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     work = tmp_path / "proj"
     work.mkdir()
     shutil.copy(REPO / "dvc.yaml", work)
     for pkg in ("render", "rig"):  # the stage's code dependencies
         shutil.copytree(REPO / pkg, work / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     write_scene(work / "scenes", TINY_SCENE)
-    (work / "params.yaml").write_text(yaml.safe_dump({"scene": "tiny", "seed": 0}))
+    params = yaml.safe_load((REPO / "params.yaml").read_text())
+    params.update(scene="tiny")
+    params["reference"]["spp"] = 4
+    (work / "params.yaml").write_text(yaml.safe_dump(params))
     bin_dir = Path(sys.executable).parent
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "DVC_NO_ANALYTICS": "1"}
     dvc = [str(bin_dir / "dvc")]
@@ -31,6 +34,8 @@ def test_dvc_repro_runs_the_capture_stage_and_is_then_up_to_date(tmp_path):
     assert first.returncode == 0, first.stderr + first.stdout
     m = read_manifest(work / "artifacts" / "tiny" / "capture")
     assert m["stage"] == "capture" and m["metrics"]["views"] == 6
+    ref = read_manifest(work / "artifacts" / "tiny" / "reference")
+    assert ref["params"]["spp"] == 4 and ref["metrics"]["views"] == 2
     assert (work / "dvc.lock").is_file()
     second = run("repro")
     assert second.returncode == 0 and "didn't change" in second.stdout + second.stderr
