@@ -128,6 +128,32 @@ def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intr
     return Intrinsics(width, height, fx * scale_back, fy * scale_back, cx * scale_back, cy * scale_back, dist)
 
 
+def _diagnose(db: Path) -> str:
+    """Why the mapper found nothing, from the feature database: too few features, or matched
+    pairs that show no camera motion (COLMAP's WATERMARK / PANORAMIC / PLANAR_OR_PANORAMIC
+    two-view geometries: content that stays put in the image, e.g. a static background)."""
+    import pycolmap
+
+    database = pycolmap.Database.open(str(db))
+    try:
+        n_img = max(database.num_images(), 1)
+        per_image = database.num_keypoints() / n_img
+        _, geoms = database.read_two_view_geometries()
+    finally:
+        database.close()
+    cfg = pycolmap.TwoViewGeometryConfiguration
+    static = {int(cfg.WATERMARK), int(cfg.PANORAMIC), int(cfg.PLANAR_OR_PANORAMIC)}
+    moving = {int(cfg.CALIBRATED), int(cfg.UNCALIBRATED), int(cfg.PLANAR)}
+    n_static = sum(int(g.config) in static for g in geoms)
+    n_moving = sum(int(g.config) in moving for g in geoms)
+    if per_image < 100 or n_static + n_moving == 0:
+        return f"{per_image:.0f} features per image, {n_moving} verified pairs (textureless subject?)"
+    if n_static > n_moving:
+        return (f"{n_static} of {n_static + n_moving} matched pairs show no camera motion "
+                "(static content in view: a background that does not turn with the object?)")
+    return f"{n_moving} verified pairs but no initial pair could be triangulated"
+
+
 def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
                     config: ColmapConfig = ColmapConfig()) -> ColmapResult:
     """Run feature extraction, matching and incremental mapping on ``images``.
@@ -139,6 +165,18 @@ def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, w
     Raises :class:`ReconstructionError` when COLMAP builds no model (e.g. a textureless
     object: no features survive matching, the mapper returns nothing).
     """
+    import pycolmap
+
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = max(level, 2)  # COLMAP's INFO/WARNING chatter off; errors stay
+    try:
+        return _estimate(images, intrinsics, workdir, config)
+    finally:
+        pycolmap.logging.minloglevel = level
+
+
+def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
+              config: ColmapConfig) -> ColmapResult:
     import pycolmap
 
     if len(images) < 2:
@@ -193,8 +231,7 @@ def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, w
     models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
     models = {i: m for i, m in (models or {}).items() if m.num_reg_images() > 0}
     if not models:
-        raise ReconstructionError(
-            f"COLMAP built no model from {len(names)} images (too few features or matches: textureless subject?)")
+        raise ReconstructionError(f"COLMAP built no model from {len(names)} images: {_diagnose(db)}")
     rec = max(models.values(), key=lambda m: m.num_reg_images())
 
     if config.final_ba_iterations > 0:
