@@ -14,6 +14,15 @@ centres), ``charuco`` (board poses, :mod:`recon.poses.charuco`; metric already, 
 estimated and scored both without and with the alignment, the latter as ``aligned_*``).
 Every written camera is in the ground-truth world frame, so later stages use it as is.
 
+``metrics.json`` (flat, for ``dvc metrics``): status ok|failed (+ reason), method,
+views_total / views_registered / registered_fraction / unregistered (names),
+rotation_error_deg_{mean,median,max}, center_error_rel_{mean,max} (divided by scene_scale, the
+median distance of the true camera centres from their centroid), alignment_scale, worst_view,
+reprojection_error_px, focal_rel / principal_point_px / distortion_abs_max (intrinsics error),
+self_check_folded / self_check_reason / max_azimuth_gap_deg / duplicate_pairs (no ground truth
+used), estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length and its
+options; charuco adds board_not_visible, corners_{min,mean} and aligned_* scores.
+
 Failure (a method ran but its result is unusable: no model, too few views registered, no board
 ever visible, a folded turntable circle, a pose error above the gate). Both promises hold:
 
