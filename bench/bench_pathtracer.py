@@ -93,17 +93,17 @@ def _throughput(scene, camera, settings, effects=None, prepared=None, repeats=3)
 
 
 def rmse_time_curve(scene, camera, prepared, ref_spp: int, max_spp: int, seed: int = 77) -> tuple[list[dict], dict]:
-    """Progressive `path` renders at 1, 2, 4, ... spp (each refining the last) against a
+    """Progressive `path` renders at 2, 4, 8, ... spp (each refining the last) against a
     `ref_spp` render with another seed; returns the curve rows and the reference's own figures."""
     t0 = time.perf_counter()
     ref = render(scene, camera, RenderSettings(integrator="path", spp=ref_spp, seed=seed + 1), prepared=prepared)
     ref_time = time.perf_counter() - t0
     ref_floor = float(np.sqrt(np.mean(ref.variance)))  # the reference's own RMS standard error
     rows = []
-    settings = RenderSettings(integrator="path", spp=1, seed=seed)
+    settings = RenderSettings(integrator="path", spp=2, seed=seed)
     t0 = time.perf_counter()
     cur = render(scene, camera, settings, prepared=prepared)
-    spp = 1
+    spp = 2
     while True:
         elapsed = time.perf_counter() - t0
         err = rmse(cur.mean, ref.mean)

@@ -27,6 +27,10 @@ bounces (0: emitters seen directly only). Russian roulette (pbrt-v4) applies whe
 vertex of index >= rr_depth (0 = the first hit): survive with probability min(1, max(beta)),
 survivors divided by it.
 
+With 'caustics' not among the effects, light that reaches a diffuse vertex through one or more
+specular vertices (from an emitter or the background) is dropped: the pruned render simulates
+the listed effects and nothing more.
+
 A render is a pure function of (scene, camera, settings, sample range): random numbers are a
 hash of (seed, pixel, sample index, dimension) (:mod:`render.sampling`), so renders of disjoint
 sample ranges merge exactly (:func:`render.film.merge_results`) and :func:`refine` adds samples.
@@ -327,14 +331,15 @@ def _moments(pix: np.ndarray, values: np.ndarray, npix: int):
 
 def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettings(),
            sample_range: tuple[int, int] | None = None, effects=None,
-           prepared: PreparedScene | None = None) -> RenderResult:
+           prepared: PreparedScene | None = None, progress=None) -> RenderResult:
     """Render ``camera``'s view of ``scene``: mean radiance and its per-pixel variance.
 
     sample_range: half-open range of sample indices [a, b) (default [0, settings.spp)); renders
     of disjoint ranges merge exactly. effects: the effects to simulate (default:
     :func:`render.effects.scene_effects`); the integrator is chosen from them when
     ``settings.integrator == "auto"``. Caustic paths are dropped when 'caustics' is not among
-    them. prepared: a :class:`PreparedScene` from :func:`prepare` to reuse.
+    them. prepared: a :class:`PreparedScene` from :func:`prepare` to reuse. progress: optional
+    callable ``progress(done_paths, total_paths)`` called after each batch (e.g. a rich bar).
     Returns a :class:`render.film.RenderResult` (mean and variance (H, W, 3) float32).
     """
     t0 = time.perf_counter()
@@ -362,22 +367,26 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     if settings.threads > 1 and len(chunks) > 1:
         with ThreadPoolExecutor(settings.threads) as ex:
             results = ex.map(work, chunks)
-            for s1, s2, cnt, nr in results:
+            for ch, (s1, s2, cnt, nr) in zip(chunks, results):
                 film.add_moments(s1, s2, cnt)
                 rays += nr
+                if progress is not None:
+                    progress(ch[1], total)
     else:
         for ch in chunks:
             s1, s2, cnt, nr = work(ch)
             film.add_moments(s1, s2, cnt)
             rays += nr
+            if progress is not None:
+                progress(ch[1], total)
     stats = {"time_s": time.perf_counter() - t0, "paths": int(total), "rays": int(rays)}
     return RenderResult.from_film(film, (a, b), integ, stats)
 
 
 def refine(result: RenderResult, scene: Scene, camera: Camera, settings: RenderSettings,
-           extra_spp: int, effects=None, prepared: PreparedScene | None = None) -> RenderResult:
+           extra_spp: int, effects=None, prepared: PreparedScene | None = None, progress=None) -> RenderResult:
     """Progressive rendering: add ``extra_spp`` samples after ``result``'s range and merge."""
     a = result.sample_range[1]
     more = render(scene, camera, replace(settings, integrator=result.integrator), (a, a + int(extra_spp)),
-                  effects, prepared)
+                  effects, prepared, progress)
     return merge_results(result, more)

@@ -103,7 +103,9 @@ def test_split_ranges_merge_exactly_and_renders_are_deterministic():
 def test_progressive_refinement():
     sc, cam = _one_bounce_scene()
     st = RenderSettings(spp=8, seed=9)
-    r = render(sc, cam, st)
+    calls = []
+    r = render(sc, cam, RenderSettings(spp=8, seed=9, batch_paths=100), progress=lambda a, b: calls.append((a, b)))
+    assert calls[-1] == (8 * 144, 8 * 144) and [c[0] for c in calls] == sorted(c[0] for c in calls)
     r2 = refine(r, sc, cam, st, 24)
     full = render(sc, cam, RenderSettings(spp=32, seed=9))
     assert r2.spp == 32 and np.allclose(r2.mean, full.mean, rtol=1e-6)
