@@ -23,7 +23,7 @@ TINY_SCENE = {
     ],
     "lights": [{"type": "spot", "position": [0.3, 0.2, 1.0], "target": [0, 0, 0], "intensity": [1.5, 1.5, 1.5],
                 "inner_deg": 20, "outer_deg": 28}],
-    "cameras": {"intrinsics": {"width": 64, "height": 48, "fov_y_deg": 40},
+    "cameras": {"intrinsics": {"width": 128, "height": 96, "fov_y_deg": 40},
                 "train": [{"ring": {"elevation_deg": 35, "count": 4, "distance": 0.8}}],
                 "test": [{"ring": {"elevation_deg": 45, "count": 2, "distance": 0.8, "azimuth_offset_deg": 45}}]},
 }

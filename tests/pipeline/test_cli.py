@@ -63,11 +63,11 @@ def test_capture_folder_is_complete_and_consistent(tiny_capture):
         rgb = read_exr(out / "linear" / f"{cam.name}.exr")
         depth = read_exr(out / "depth" / f"{cam.name}.exr")
         mask = read_png(out / "masks" / f"{cam.name}.png")
-        assert rgb.shape == (48, 64, 3) and depth.shape == (48, 64) and mask.shape == (48, 64)
+        assert rgb.shape == (96, 128, 3) and depth.shape == (96, 128) and mask.shape == (96, 128)
         assert np.isfinite(rgb).all() and rgb.min() >= 0 and 0.1 < rgb.max() < 2.0 and rgb.mean() > 0.002
         assert (out / "images" / f"{cam.name}.png").is_file()
         # the subject is in the middle of every view and the depth there is about the distance
-        assert mask[24, 32] == 255 and 0.6 < depth[24, 32] < 0.8
+        assert mask[48, 64] == 255 and 0.6 < depth[48, 64] < 0.8
     # the three camera formats describe the same cameras
     colmap = {c.name: c for c in read_colmap_text(out / "colmap")}
     train = read_transforms_json(out / "transforms_train.json")

@@ -29,14 +29,14 @@ def test_reference_writes_mean_variance_and_cameras(tiny_dirs):
     for cam in cams:
         mean = read_exr(ref / "linear" / f"{cam.name}.exr")
         var = read_exr(ref / "variance" / f"{cam.name}.exr")
-        assert mean.shape == var.shape == (48, 64, 3)
+        assert mean.shape == var.shape == (96, 128, 3)
         assert np.isfinite(mean).all() and np.isfinite(var).all() and var.min() >= 0
         assert (var > 0).any()
 
 
 def test_reference_agrees_with_the_rasterized_capture(tiny_dirs):
     """Same light units in both renderers: per-view mean radiance within 3% and most pixels
-    within noise. At 64x48 many pixels straddle an edge or the board's pattern, where MSAA's 4
+    within noise. At 128x96 many pixels straddle an edge or the board's pattern, where MSAA's 4
     subsamples and the path tracer's box filter differ, hence 90% and not more."""
     _, root = tiny_dirs
     for cam in read_cameras_json(root / "reference" / "cameras.json")[0]:
