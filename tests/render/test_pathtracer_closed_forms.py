@@ -11,7 +11,8 @@ from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.pathtracer import RenderSettings, render
 from render.poses import look_at
-from render.scene import Dielectric, DirectionalLight, Emissive, Mirror, PointLight, Scene, SceneObject, SpotLight
+from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Mirror, PointLight, Scene, SceneObject,
+                          SpotLight)
 
 RHO = np.array([0.5, 0.5, 0.5])
 LE = np.array([1.0, 2.0, 0.5])
@@ -198,3 +199,23 @@ def test_mirror_sphere_in_uniform_environment():
     cam = probe_camera(np.zeros(3), [0, -4.0, 0.0], size=4, fov_deg=5.0)
     r = render(sc, cam, RenderSettings(spp=16, seed=18))
     _check(r, R * sc.background, rel_floor=1e-6)
+
+
+def test_textured_lambertian_under_directional_light():
+    """A 2 x 1 texture on a unit quad (u along x, v along y): at the centre of each texel the
+    radiance is srgb_to_linear(texel) * tint * E cos / pi."""
+    from render.color import srgb_to_linear
+    tex = np.array([[[200, 40, 90], [30, 160, 250]]], dtype=np.uint8)  # row 0: left, right texel
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=v[:, :2].copy())
+    tint = np.array([0.9, 0.8, 1.0])
+    E = np.array([2.0, 2.0, 2.0])
+    sc = Scene("tex", [SceneObject("q", mesh, Lambertian(tint, texture=tex))],
+               lights=[DirectionalLight([0, 0, -1.0], E)])
+    for j, x in enumerate((0.25, 0.75)):
+        q = np.array([x, 0.5, 0.0])
+        cam = probe_camera(q, q + [0.0, -1.0, 1.0], fov_deg=1e-3)
+        r = render(sc, cam, RenderSettings(spp=16, seed=19 + j))
+        albedo = srgb_to_linear(tex[0, j] / 255.0) * tint
+        _check(r, albedo * E / np.pi, rel_floor=1e-3)  # bilinear kink at the texel centre over the footprint
