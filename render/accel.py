@@ -142,13 +142,17 @@ class Accel:
     """Embree BVH over a scene's valid triangles.
 
     threads: how many threads a large batch is split over (embreex releases the GIL).
+    subset: optional (T,) bool mask: build over those triangles only (hits still report global
+    triangle indices), e.g. the emitters alone.
     """
 
-    def __init__(self, scene: Scene, threads: int = 2, geometry: Geometry | None = None):
+    def __init__(self, scene: Scene, threads: int = 2, geometry: Geometry | None = None,
+                 subset: np.ndarray | None = None):
         self.geometry = geometry if geometry is not None else Geometry.from_scene(scene)
         g = self.geometry
         self.threads = max(1, int(threads))
-        self._ids = np.nonzero(g.valid)[0].astype(np.int64)  # embree primID -> global tri
+        keep = g.valid if subset is None else g.valid & np.asarray(subset, bool)
+        self._ids = np.nonzero(keep)[0].astype(np.int64)  # embree primID -> global tri
         self._scene = None
         if len(self._ids):
             tv = np.stack([g.v0, g.v0 + g.e1, g.v0 + g.e2], axis=1)[self._ids].astype(np.float32)

@@ -129,7 +129,11 @@ def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool =
 
 @dataclass
 class PreparedScene:
-    """A scene's BVH, triangle arrays, material table and light distribution (reusable)."""
+    """A scene's BVH, triangle arrays, material table and light distribution (reusable).
+
+    emit_accel: a BVH over the emissive triangles alone: `direct` finds what its last BSDF ray
+    could hit there first, and asks the full BVH only an occlusion query up to that emitter.
+    """
 
     geom: Geometry
     accel: Accel
@@ -137,6 +141,7 @@ class PreparedScene:
     lights: LightSet
     background: np.ndarray
     has_delta_lights: bool
+    emit_accel: Accel | None = None
 
 
 def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
@@ -146,7 +151,52 @@ def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
     mats = MaterialTable.from_scene(scene)
     lights = LightSet(scene, geom, mats)
     delta = any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in scene.lights)
-    return PreparedScene(geom, accel, mats, lights, np.asarray(scene.background, np.float64), delta)
+    emitters = mats.emits[geom.obj] if len(geom.obj) else np.zeros(0, bool)
+    emit_accel = Accel(scene, threads=1, geometry=geom, subset=emitters) if emitters.any() else None
+    return PreparedScene(geom, accel, mats, lights, np.asarray(scene.background, np.float64), delta, emit_accel)
+
+
+def _last_bounce(ps: PreparedScene, st: RenderSettings, heur, o: np.ndarray, d: np.ndarray,
+                 beta: np.ndarray, pdf: np.ndarray) -> tuple[np.ndarray, int]:
+    """Radiance a `direct` path's final BSDF ray brings back, without a full intersection.
+
+    o, d: (K, 3) ray origins and directions leaving the diffuse vertex; beta: (K, 3) throughput
+    including the BSDF weight; pdf: (K,) the BSDF sample's density. An emitter hit found in the
+    emitter-only BVH counts (MIS-weighted against NEE) unless the full BVH has an occluder
+    before it; an escaping ray brings the background. Returns ((K, 3) radiance, ray queries).
+    """
+    k = len(o)
+    out = np.zeros((k, 3))
+    g, mats, lights = ps.geom, ps.mats, ps.lights
+    nrays = 0
+    hit_tri = np.full(k, -1, np.int64)
+    t_hit = np.full(k, np.inf)
+    if ps.emit_accel is not None and st.strategy != "light":
+        h = ps.emit_accel.intersect(o, d, threads=1)
+        nrays += k
+        hit_tri, t_hit = h.tri, h.t
+        e = np.nonzero(hit_tri >= 0)[0]
+        if len(e):
+            occ = ps.accel.occluded(o[e], d[e], t_hit[e] * (1.0 - 1e-6), threads=1)
+            nrays += len(e)
+            e = e[~occ]
+            tri = hit_tri[e]
+            obj = g.obj[tri]
+            cos_hit = -dot3(d[e], g.normal[tri])
+            front = mats.two_sided[obj] | (cos_hit > 0)
+            e, tri, obj, cos_hit = e[front], tri[front], obj[front], cos_hit[front]
+            w = np.ones(len(e))
+            if st.strategy == "mis" and lights.has_area:
+                w = heur(pdf[e], lights.pdf_hit(tri, t_hit[e], cos_hit))
+            out[e] = beta[e] * mats.Le[obj] * w[:, None]
+    if ps.background.max() > 0:
+        m = np.nonzero(hit_tri < 0)[0]
+        if len(m):
+            occ = ps.accel.occluded(o[m], d[m], np.inf, threads=1)
+            nrays += len(m)
+            m = m[~occ]
+            out[m] += beta[m] * ps.background
+    return out, nrays
 
 
 def _heuristic(settings: RenderSettings):
@@ -288,6 +338,15 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caust
                 weight[sub] = alb
                 pdf[sub] = loc[:, 2] * INV_PI
                 valid[sub] = (loc[:, 2] > 0) & (cos_o[sub] != 0)
+                if direct:  # the path ends here: gather what the last BSDF ray brings back
+                    ok = np.nonzero(valid[sub] & (max3(alb) > 0))[0]
+                    dk = diff[ok]
+                    wk = wi[dk]
+                    Lk, nr = _last_bounce(ps, st, heur, spawn_origin(p[dk], ng[dk], wk, extent), wk,
+                                          beta[dk] * alb[ok], pdf[dk])
+                    L[idx[dk]] += Lk
+                    nrays += nr
+                    valid[sub] = False
         if has_specular and not all_diff:
             spec = np.nonzero(kind != LAMBERT)[0]
             n_s = nrm[spec]
