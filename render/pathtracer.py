@@ -12,7 +12,8 @@ Integrators (Heckbert's notation; see render.effects):
 
 * ``direct``: L D E and L D S* E / L S* E: camera rays follow mirror and glass, and at the
   first diffuse vertex light is gathered by next-event estimation and / or one BSDF sample
-  (combined by MIS). Reaches effects direct, shadows, soft_shadows, specular.
+  (combined by MIS); that last BSDF ray is traced against an emitter-only BVH plus one
+  occlusion query. Reaches effects direct, shadows, soft_shadows, specular.
 * ``path``: L (S|D)* E with NEE + MIS at every diffuse vertex and Russian roulette: adds
   interreflection and caustics from area sources (found by BSDF sampling). Caustics from
   point, spot and directional lights are unreachable (a delta light through a delta BSDF):
@@ -34,6 +35,14 @@ the listed effects and nothing more.
 A render is a pure function of (scene, camera, settings, sample range): random numbers are a
 hash of (seed, pixel, sample index, dimension) (:mod:`render.sampling`), so renders of disjoint
 sample ranges merge exactly (:func:`render.film.merge_results`) and :func:`refine` adds samples.
+
+Usage (what ``lumigraph reference`` calls)::
+
+    ps = prepare(scene)                                   # BVHs, lights, materials: once per scene
+    res = render(scene, camera, RenderSettings(integrator="auto", spp=256, seed=0), prepared=ps)
+    res.mean, res.variance                                # (H, W, 3) float32 radiance, its variance
+    res = refine(res, scene, camera, settings, 256, prepared=ps)   # 256 more samples
+    part = render(scene, camera, settings, sample_range=(256, 512))  # a batch for another worker
 """
 from __future__ import annotations
 
