@@ -198,7 +198,10 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
     if not train:
         raise BadInput(f"{(poses_dir or capture_dir) / 'cameras.json'}: no train cameras")
     views = load_views(capture_dir, train)
-    bounds = content_bounds(_content_points(views, config.min_radiance))
+    try:
+        bounds = content_bounds(_content_points(views, config.min_radiance))
+    except ValueError as exc:
+        raise BadInput(f"{capture_dir}: cannot bound the content ({str(exc).splitlines()[0]})") from None
     scene_file = _scene_file(capture_dir)
     up = np.array([0.0, 0.0, 1.0])
     info: dict = {"bounds": bounds.tolist()}
@@ -208,7 +211,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
             raise BadInput(f"{capture_dir / MANIFEST}: names no readable scene file (direct acquisition renders the scene)")
         rig, renderer, render, close = _direct_renderer(scene_file, config)
         up = np.asarray(rig.scene.up, dtype=np.float64)
-        geoms = slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+        geoms = _layout(config, bounds, train, up)
         K, F = config.direct.uv_supersample, config.direct.st_supersample
         per_uv = K * K + (1 if K % 2 == 0 else 0)
         total = sum(g.shape[0] * g.shape[1] for g in geoms) * per_uv
@@ -224,7 +227,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
             from rig.spec import load_spec
 
             up = np.asarray(load_spec(scene_file)[0].up, dtype=np.float64)
-        geoms = slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+        geoms = _layout(config, bounds, train, up)
         bg = _background(views)
         with progress_bar(quiet) as bar:
             task = bar.add_task("slab: rebin", total=sum(g.shape[0] * g.shape[1] for g in geoms), info="")
@@ -238,6 +241,13 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
     info["bytes"] = int(sum(s.nbytes for s in slabs))
     info["radiance_bytes"] = int(sum(s.radiance.nbytes for s in slabs))
     return slabs, info
+
+
+def _layout(config: SlabStageConfig, bounds: np.ndarray, train: list[Camera], up: np.ndarray):
+    try:
+        return slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+    except ValueError as exc:
+        raise BadInput(f"slab layout: {str(exc).splitlines()[0]}") from None
 
 
 def _background(views: list[CapturedView]) -> np.ndarray:
