@@ -219,3 +219,21 @@ def test_textured_lambertian_under_directional_light():
         r = render(sc, cam, RenderSettings(spp=16, seed=19 + j))
         albedo = srgb_to_linear(tex[0, j] / 255.0) * tint
         _check(r, albedo * E / np.pi, rel_floor=1e-3)  # bilinear kink at the texel centre over the footprint
+
+
+def test_area_and_delta_lights_together():
+    """One light distribution over a rectangle source, a point light and a directional light:
+    the irradiances add (each light picked by power, divided by its probability)."""
+    corners = np.array([[-0.5, -0.3, 0.8], [0.5, -0.3, 0.8], [0.5, 0.3, 0.8], [-0.5, 0.3, 0.8]])
+    I, pos = np.array([0.5, 0.2, 0.1]), np.array([1.2, 0.5, 1.0])  # neither hidden by the source
+    Ed, dirn = np.array([0.1, 0.3, 0.2]), np.array([0.0, 1.0, -1.0])
+    sc = Scene("mixed", [receiver_box(RHO), SceneObject("light", quad((0, 0, 0.8), 0.5, 0.3, -1.0), Emissive(LE))],
+               lights=[PointLight(pos, I), DirectionalLight(dirn, Ed)])
+    sc.effects = frozenset({"direct", "soft_shadows", "shadows"})
+    q = np.array([0.1, 0.1, 0.0])
+    cam = probe_camera(q, q + [0.3, -2.0, 0.3])
+    r = render(sc, cam, RenderSettings(spp=8192, seed=21))
+    dq = pos - q
+    E = (polygon_irradiance(corners, q, np.array([0, 0, 1.0]), LE) + I * dq[2] / np.linalg.norm(dq) / (dq @ dq)
+         + Ed / np.linalg.norm(dirn))
+    _check(r, RHO * E / np.pi)
