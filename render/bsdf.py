@@ -26,7 +26,7 @@ from .sampling import INV_PI, cosine_hemisphere, cosine_hemisphere_pdf
 __all__ = [
     "BSDFSample", "DiffuseEmitter",
     "lambert_eval", "lambert_pdf", "lambert_sample",
-    "mirror_sample", "fresnel_dielectric", "dielectric_sample",
+    "mirror_sample", "fresnel_dielectric", "dielectric_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample",
     "MaterialTable", "LAMBERT", "MIRROR", "DIELECTRIC", "EMISSIVE",
 ]
 
@@ -142,6 +142,37 @@ def dielectric_sample(ior: np.ndarray, wo: np.ndarray, u: np.ndarray) -> BSDFSam
     valid = (cos_o != 0) & (pdf > 0)
     weight = np.repeat((scale * valid)[:, None], 3, axis=1)
     return BSDFSample(wi, weight, pdf, np.ones(len(wo), bool), valid)
+
+
+# ---------------------------------------------------------------- dispatch over mixed materials
+def bsdf_eval(kind: np.ndarray, albedo: np.ndarray, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
+    """f(wo, wi) (N, 3) for per-ray material kinds (N,); zero for delta BSDFs and emitters.
+
+    albedo: (N, 3) diffuse albedo. wo, wi: (N, 3) local directions.
+    """
+    return np.where((kind == LAMBERT)[:, None], lambert_eval(albedo, wo, wi), 0.0)
+
+
+def bsdf_pdf(kind: np.ndarray, wo: np.ndarray, wi: np.ndarray) -> np.ndarray:
+    """Solid-angle density (N,) with which :func:`bsdf_sample` picks wi; 0 for delta BSDFs."""
+    return np.where(kind == LAMBERT, lambert_pdf(wo, wi), 0.0)
+
+
+def bsdf_sample(kind: np.ndarray, albedo: np.ndarray, ior: np.ndarray, wo: np.ndarray,
+                u1: np.ndarray, u2: np.ndarray) -> BSDFSample:
+    """Sample every ray's own BSDF. kind (N,); albedo (N, 3) (Lambertian albedo or mirror
+    reflectance); ior (N,); wo (N, 3) local (Lambertian/mirror frames facing wo, dielectric frames
+    outward); u1 (N,) lobe choice; u2 (N, 2) direction. Emitters return invalid samples."""
+    n = len(kind)
+    out = BSDFSample(np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n), np.zeros(n, bool), np.zeros(n, bool))
+    for k, fn in ((LAMBERT, lambda s: lambert_sample(albedo[s], wo[s], u2[s])),
+                  (MIRROR, lambda s: mirror_sample(albedo[s], wo[s])),
+                  (DIELECTRIC, lambda s: dielectric_sample(ior[s], wo[s], u1[s]))):
+        s = np.nonzero(kind == k)[0]
+        if len(s):
+            bs = fn(s)
+            out.wi[s], out.weight[s], out.pdf[s], out.delta[s], out.valid[s] = bs.wi, bs.weight, bs.pdf, bs.delta, bs.valid
+    return out
 
 
 # ---------------------------------------------------------------- material table

@@ -53,7 +53,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .accel import Accel, Geometry, offset_eps, spawn_origin
-from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, MaterialTable, dielectric_sample, mirror_sample
+from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, MaterialTable, bsdf_sample
 from .camera import Camera
 from .effects import scene_effects
 from .film import Film, RenderResult, merge_results
@@ -361,17 +361,10 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caust
             n_s = nrm[spec]
             s_ax, t_ax = orthonormal_frame(n_s)
             wo_l = to_local(-d[spec], s_ax, t_ax, n_s)
-            ks = kind[spec]
-            bs_wi = np.zeros((len(spec), 3))
-            for kk, fn in ((MIRROR, lambda sel: mirror_sample(mats.albedo[obj[spec[sel]]], wo_l[sel])),
-                           (DIELECTRIC, lambda sel: dielectric_sample(mats.ior[obj[spec[sel]]], wo_l[sel],
-                                                                      rnd[spec[sel], 3]))):
-                sel = np.nonzero(ks == kk)[0]
-                if len(sel):
-                    bs = fn(sel)
-                    bs_wi[sel] = bs.wi
-                    tgt = spec[sel]
-                    weight[tgt], pdf[tgt], delta[tgt], valid[tgt] = bs.weight, bs.pdf, bs.delta, bs.valid
+            os_ = obj[spec]
+            bs = bsdf_sample(kind[spec], mats.albedo[os_], mats.ior[os_], wo_l, rnd[spec, 3], rnd[spec, 4:6])
+            weight[spec], pdf[spec], delta[spec], valid[spec] = bs.weight, bs.pdf, bs.delta, bs.valid
+            bs_wi = bs.wi
             wi[spec] = to_world(bs_wi, s_ax, t_ax, n_s)
         beta = beta * weight
         if integ == "path" and st.roulette and depth >= st.rr_depth:

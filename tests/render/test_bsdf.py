@@ -110,3 +110,25 @@ def test_textured_albedo_uses_shared_lookup():
     a = mt.diffuse_albedo(np.zeros(3, np.int64), lambda m: g.texcoords(tri[m], u[m], v[m]))
     uv = (1 - u - v)[:, None] * [0.1, 0.2] + u[:, None] * [0.9, 0.3] + v[:, None] * [0.4, 0.8]
     assert np.allclose(a, sample_bilinear(decode_texture(tex), uv) * tint)
+
+
+def test_mixed_material_dispatch():
+    """bsdf_sample / bsdf_eval / bsdf_pdf over rays of mixed kinds equal the per-kind functions."""
+    from render.bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
+    n = 4000
+    kind = np.array([LAMBERT, MIRROR, DIELECTRIC, EMISSIVE])[np.arange(n) % 4]
+    u = _u(23, n, 3)
+    wo = _wo(0.7, n)
+    albedo = np.tile([0.3, 0.6, 0.9], (n, 1))
+    ior = np.full(n, 1.5)
+    s = bsdf_sample(kind, albedo, ior, wo, u[:, 0], u[:, 1:3])
+    lam, mir, die = (np.nonzero(kind == k)[0] for k in (LAMBERT, MIRROR, DIELECTRIC))
+    ref_l = lambert_sample(albedo[lam], wo[lam], u[lam, 1:3])
+    ref_d = dielectric_sample(ior[die], wo[die], u[die, 0])
+    assert np.allclose(s.wi[lam], ref_l.wi) and np.allclose(s.weight[lam], ref_l.weight)
+    assert np.allclose(s.wi[mir], mirror_sample(albedo[mir], wo[mir]).wi) and s.delta[mir].all()
+    assert np.allclose(s.wi[die], ref_d.wi) and np.allclose(s.pdf[die], ref_d.pdf)
+    assert not s.valid[kind == EMISSIVE].any()
+    f, pdf = bsdf_eval(kind, albedo, wo, s.wi), bsdf_pdf(kind, wo, s.wi)
+    assert np.all(f[kind != LAMBERT] == 0) and np.all(pdf[kind != LAMBERT] == 0)
+    assert np.allclose(pdf[lam], s.pdf[lam])
