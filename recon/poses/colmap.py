@@ -4,9 +4,10 @@ Two modes (:class:`ColmapConfig.known_intrinsics`):
 
 * known intrinsics: one PINHOLE camera with the given ``fx fy cx cy``; bundle adjustment keeps
   focal length and principal point fixed, only poses and points move;
-* self-calibration: one OPENCV camera (``fx fy cx cy k1 k2 p1 p2``) started from COLMAP's
-  default focal guess (1.2 x the larger image side) and refined with the distortion; the
-  principal point stays at the image centre unless ``refine_principal_point``.
+* self-calibration: one SIMPLE_RADIAL camera (``f cx cy k1``, COLMAP's default model) started
+  from COLMAP's default focal guess (1.2 x the larger image side), focal and k1 refined; the
+  principal point stays at the image centre unless ``refine_principal_point``. (An OPENCV
+  camera, 4 distortion terms free, registered only 2 of 56 default-scene views.)
 
 COLMAP and we put pixel centres at +0.5, so intrinsics pass to and from COLMAP unchanged.
 Images can be resized by ``image_scale`` first (intrinsics scaled with them); the returned
@@ -37,7 +38,7 @@ class ReconstructionError(ValueError):
 class ColmapConfig:
     """Options that matter for accuracy and time; the defaults give the figures in the report.
 
-    known_intrinsics: PINHOLE with fixed calibration (True) or self-calibrated OPENCV (False).
+    known_intrinsics: PINHOLE with fixed calibration (True) or self-calibrated SIMPLE_RADIAL (False).
     image_scale: resize factor applied before feature extraction (1 = capture resolution).
     max_features: SIFT features per image.
     matcher: ``exhaustive`` (every pair), ``sequential`` (neighbours in name order, with loop
@@ -115,9 +116,13 @@ def _image_size(path: Path) -> tuple[int, int]:
 
 
 def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intrinsics:
-    """A pycolmap PINHOLE/OPENCV camera -> our Intrinsics at the input resolution."""
+    """A pycolmap PINHOLE/SIMPLE_RADIAL/OPENCV camera -> our Intrinsics at the input resolution."""
     p = np.asarray(cam.params, dtype=np.float64)
-    if cam.model_name == "PINHOLE":
+    if cam.model_name == "SIMPLE_RADIAL":
+        f, cx, cy, k1 = p
+        fx = fy = f
+        dist = (k1, 0.0, 0.0, 0.0, 0.0)
+    elif cam.model_name == "PINHOLE":
         fx, fy, cx, cy = p
         dist = (0.0,) * 5
     elif cam.model_name == "OPENCV":
@@ -197,7 +202,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         reader.camera_model = "PINHOLE"
         reader.camera_params = ",".join(repr(float(v)) for v in (k.fx, k.fy, k.cx, k.cy))
     else:
-        reader.camera_model = "OPENCV"
+        reader.camera_model = "SIMPLE_RADIAL"
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.num_threads
     extraction.sift.max_num_features = config.max_features
