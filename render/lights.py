@@ -94,6 +94,9 @@ class LightSet:
         self.a_v0, self.a_e1, self.a_e2 = geom.v0[self.tri], geom.e1[self.tri], geom.e2[self.tri]
         self.a_normal = geom.normal[self.tri]
         self.a_pdf_area = self.pmf[: self.n_area] / np.maximum(geom.area[self.tri], 1e-300)
+        # packed per-entry rows [v0, e1, e2, normal, pdf_area, Le, two_sided]: one gather per sample
+        self._packed = np.concatenate([self.a_v0, self.a_e1, self.a_e2, self.a_normal, self.a_pdf_area[:, None],
+                                       self.Le, self.two_sided[:, None].astype(np.float64)], axis=1)
         self.has_area = self.n_area > 0 and self.pmf[: self.n_area].sum() > 0
         self.has_delta = nd > 0 and p_delta.sum() > 0
 
@@ -113,17 +116,18 @@ class LightSet:
         """:meth:`sample` when every light is an area source (no masks, no scatter)."""
         floor = (1e-9 * self.geom.extent) ** 2
         j = np.minimum(np.searchsorted(self.cdf, u_sel * self.cdf[-1], side="right"), len(self.pmf) - 1)
+        q = self._packed[j]
         su = np.sqrt(u2[:, 0])
         b1 = (1.0 - su)[:, None]
         b2 = (u2[:, 1] * su)[:, None]
-        d = self.a_v0[j] + b1 * self.a_e1[j] + b2 * self.a_e2[j] - p
+        d = q[:, 0:3] + b1 * q[:, 3:6] + b2 * q[:, 6:9] - p
         r2 = np.maximum(dot3(d, d), floor)
         r = np.sqrt(r2)
         w = d / r[:, None]
-        cos_l = -dot3(w, self.a_normal[j])
-        emits = self.two_sided[j] | (cos_l > 0)
-        pdf = self.a_pdf_area[j] * r2 / np.maximum(np.abs(cos_l), _COS_FLOOR)
-        Li = self.Le[j] * emits[:, None]
+        cos_l = -dot3(w, q[:, 9:12])
+        emits = (q[:, 16] > 0) | (cos_l > 0)
+        pdf = q[:, 12] * r2 / np.maximum(np.abs(cos_l), _COS_FLOOR)
+        Li = q[:, 13:16] * emits[:, None]
         return LightSample(w, r, Li, pdf, np.zeros(len(p), bool), emits & (cos_l != 0))
 
     def sample(self, p: np.ndarray, u_sel: np.ndarray, u2: np.ndarray) -> LightSample:

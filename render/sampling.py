@@ -88,10 +88,17 @@ def concentric_disk(u: np.ndarray) -> np.ndarray:
 
 
 def cosine_hemisphere(u: np.ndarray) -> np.ndarray:
-    """Cosine-weighted directions about +z (Malley's method): u (N, 2) -> (N, 3) unit vectors."""
+    """Cosine-weighted directions about +z: u (N, 2) -> (N, 3) unit vectors.
+
+    Malley's method on the polar disk map (r = sqrt(u0), phi = 2 pi u1): fewer operations than
+    the concentric map, the same density cos(theta) / pi.
+    """
     out = np.empty((len(u), 3))
-    _concentric(u, out)
-    out[:, 2] = np.sqrt(np.maximum(0.0, 1.0 - out[:, 0] ** 2 - out[:, 1] ** 2))
+    r = np.sqrt(u[:, 0])
+    phi = (2.0 * np.pi) * u[:, 1]
+    out[:, 0] = r * np.cos(phi)
+    out[:, 1] = r * np.sin(phi)
+    out[:, 2] = np.sqrt(np.maximum(0.0, 1.0 - u[:, 0]))
     return out
 
 
