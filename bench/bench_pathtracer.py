@@ -69,7 +69,7 @@ def bare_embree_rays_per_s(scene: Scene, camera: Camera, passes: int, threads: i
             list(ex.map(lambda c: es.run(c[0], c[1], output=True), chunks))
             cpu.append(time.process_time() - c0)
         t, _ = median_time(run, repeats=5)
-    return len(o) / t, len(o), len(o) / float(np.median(cpu[1:]))
+    return len(o) / t, len(o), len(o) / float(np.min(cpu[1:]))
 
 
 def one_bounce_scene() -> tuple[Scene, Camera]:
@@ -85,7 +85,8 @@ def one_bounce_scene() -> tuple[Scene, Camera]:
 
 
 def _throughput(scene, camera, settings, effects=None, prepared=None, repeats=5) -> dict:
-    """Median wall time and median CPU time (all threads; robust to other jobs on the machine)."""
+    """Median wall time and minimum CPU time over the repeats (all threads; the minimum is the
+    least disturbed by other jobs on a shared machine)."""
     res = {}
     cpu = []
 
@@ -94,8 +95,8 @@ def _throughput(scene, camera, settings, effects=None, prepared=None, repeats=5)
         res["r"] = render(scene, camera, settings, effects=effects, prepared=prepared)
         cpu.append(time.process_time() - c0)
 
-    t, _ = median_time(run, repeats=repeats)
-    c = float(np.median(cpu[1:]))  # the first call is the warm-up
+    t, _ = median_time(run, repeats=repeats, warmup=1)
+    c = float(np.min(cpu[1:]))  # the first call is the warm-up
     st = res["r"].stats
     return {"seconds": t, "cpu_seconds": c, "paths": st["paths"], "rays": st["rays"],
             "paths_per_s": st["paths"] / t, "rays_per_s": st["rays"] / t,
