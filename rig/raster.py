@@ -365,7 +365,10 @@ class RasterRenderer:
     effects (:func:`render.effects.scene_effects`) include ``shadows`` (override with
     ``shadows``); point lights are then refused, as the rasterizer cannot shadow them.
     width, height: image size; every rendered camera must have it. samples: MSAA samples
-    per pixel (the driver may round up; llvmpipe gives 4).
+    per pixel (the driver may round up; llvmpipe gives 4). MSAA shades once per pixel, so it
+    smooths geometry edges only; texture_taps: the albedo texture is box-filtered over the
+    pixel's footprint with texture_taps x texture_taps bilinear taps (1 = a point sample at the
+    pixel centre), as a sensor pixel (and the path tracer's box filter) integrates it.
 
     Usage::
 
@@ -373,7 +376,10 @@ class RasterRenderer:
             frame = r.render(camera)    # RasterFrame(rgb, depth, mask)
     """
 
-    def __init__(self, scene: Scene, width: int, height: int, *, samples: int = 4, shadows: bool | None = None):
+    def __init__(self, scene: Scene, width: int, height: int, *, samples: int = 4, shadows: bool | None = None,
+                 texture_taps: int = 4):
+        if not 1 <= int(texture_taps) <= 16:
+            raise ValueError(f"texture_taps must lie in [1, 16], got {texture_taps}")
         if width <= 0 or height <= 0:
             raise ValueError(f"image size must be positive, got {width}x{height}")
         for o in scene.objects:
@@ -397,7 +403,7 @@ class RasterRenderer:
         self._background = np.asarray(scene.background, dtype=np.float32)
         defines = {"LG_N_SPOT": len(spots), "LG_N_DIR": len(dirs), "LG_N_POINT": len(points),
                    "LG_SHADOWS": int(self.shadows), "LG_NORMAL_OFFSET": f"{_NORMAL_OFFSET_TEXELS:.6f}",
-                   "LG_DEPTH_BIAS": f"{_DEPTH_BIAS_TEXELS:.6f}"}
+                   "LG_DEPTH_BIAS": f"{_DEPTH_BIAS_TEXELS:.6f}", "LG_TEXTURE_TAPS": int(texture_taps)}
 
         self._offscreen = pyrender.OffscreenRenderer(self.width, self.height)
         self._platform = self._offscreen._platform

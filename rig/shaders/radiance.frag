@@ -102,6 +102,25 @@ float shadow_visibility(sampler2DShadow map, mat4 light_matrix, vec3 p, vec3 n, 
     return texture(map, vec3(s.xy, min(s.z, 1.0)));
 }
 
+#ifdef HAS_BASE_COLOR_TEX
+// Albedo averaged over the pixel's footprint in texture space (the parallelogram spanned by the
+// uv derivatives), LG_TEXTURE_TAPS^2 bilinear taps on a regular grid: a box filter, as a sensor
+// pixel integrates. MSAA alone shades once per pixel and would alias texture edges.
+vec3 pixel_albedo(vec2 uv)
+{
+    vec2 du = dFdx(uv);
+    vec2 dv = dFdy(uv);
+    vec3 sum = vec3(0.0);
+    for (int i = 0; i < LG_TEXTURE_TAPS; i++) {
+        for (int j = 0; j < LG_TEXTURE_TAPS; j++) {
+            vec2 o = (vec2(float(i), float(j)) + 0.5) / float(LG_TEXTURE_TAPS) - 0.5;
+            sum += texture(albedo_texture, uv + o.x * du + o.y * dv).rgb;
+        }
+    }
+    return sum / float(LG_TEXTURE_TAPS * LG_TEXTURE_TAPS);
+}
+#endif
+
 void main()
 {
     vec3 p = frag_position;
@@ -115,7 +134,7 @@ void main()
 
     vec3 rho = albedo;
 #ifdef HAS_BASE_COLOR_TEX
-    rho *= texture(albedo_texture, uv_0).rgb;
+    rho *= pixel_albedo(uv_0);
 #endif
 
     vec3 E = vec3(0.0);

@@ -199,8 +199,14 @@ def test_textured_quad_matches_sample_bilinear(geo, render_scene):
     for off in ([-0.5, -0.5], [0.5, -0.5], [-0.5, 0.5], [0.5, 0.5]):
         q = hits(np.array(off))
         inside &= (q[:, 0] > x0) & (q[:, 0] < x1) & (q[:, 1] > y0) & (q[:, 1] < y1)
-    uv = np.stack([u0 + (p[:, 0] - x0) / (x1 - x0) * (u1 - u0), v0 + (p[:, 1] - y0) / (y1 - y0) * (v1 - v0)], 1)
-    expected = tint * sample_bilinear(decode_texture(tex), uv) * E / np.pi
+    def uv_at(q):
+        return np.stack([u0 + (q[:, 0] - x0) / (x1 - x0) * (u1 - u0), v0 + (q[:, 1] - y0) / (y1 - y0) * (v1 - v0)], 1)
+
+    uv = uv_at(p)
+    # the rasterizer box-filters the texture over the pixel (4 x 4 taps): so does the expectation
+    taps = (np.arange(4) + 0.5) / 4 - 0.5
+    albedo = np.mean([sample_bilinear(decode_texture(tex), uv_at(hits(np.array([a, b])))) for a in taps for b in taps], 0)
+    expected = tint * albedo * E / np.pi
     got = frame.rgb.reshape(-1, 3)
     assert inside.sum() > 3000
     err = np.abs(got[inside] - expected[inside])
@@ -357,3 +363,19 @@ def test_msaa_edges_are_box_averages_consistent_with_mask_and_depth(geo, render_
     assert np.array_equal(frame.mask, v >= 0.5)
     assert np.array_equal(frame.depth > 0, v >= 0.5)
     assert np.abs(frame.depth[v >= 0.5] / 2.0 - 1).max() < 1e-5  # partly covered pixels too
+
+
+def test_minified_texture_is_box_filtered_not_aliased(geo, render_scene):
+    """A fine checkerboard (about 8 texels per pixel) must come out near its mean albedo, as a
+    sensor pixel integrates it; point-sampling it (texture_taps=1) aliases into a random pattern."""
+    n = 1024
+    checker = (((np.arange(n)[:, None] // 2) + (np.arange(n)[None] // 2)) % 2).astype(np.uint8) * 255
+    tex = np.repeat(checker[..., None], 3, axis=2)
+    scene = Scene("fine", [SceneObject("card", geo.quad_mesh(-1, 1, -1, 1, uv=[[0, 0], [1, 0], [1, 1], [0, 1]]), Lambertian(1.0, texture=tex))],
+                  lights=[DirectionalLight([0, 0, -1], np.pi)])  # radiance = albedo
+    cam = geo.camera_at([0, 0, 2.2], [0, 0, 0], fov_y=50.0, up=(0, 1, 0))
+    centre = (slice(40, 80), slice(60, 100))
+    filtered = render_scene(scene, cam).rgb[centre]
+    aliased = render_scene(scene, cam, texture_taps=1).rgb[centre]
+    assert abs(filtered.mean() - 0.5) < 0.05 and filtered.std() < 0.12
+    assert aliased.std() > 2 * filtered.std()
