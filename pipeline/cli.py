@@ -50,15 +50,47 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               max_depth: int = typer.Option(8, help="maximum bounces"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+              scheduler: Optional[str] = typer.Option(None, envvar="LUMIGRAPH_SCHEDULER",
+                                                      help="existing Dask scheduler address (default: local)"),
+              workers: Optional[int] = typer.Option(None, help="local Dask workers (default: cores/2; 0: in process)"),
               quiet: bool = QUIET):
     """Path-traced reference renders of a scene's views, with per-pixel variance images."""
+    from .distributed import ClusterConfig
     from .stages.reference import run_reference
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "reference", root)
-    m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet)
+    m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet,
+                      ClusterConfig(scheduler=scheduler, workers=workers))
     typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
+
+
+@app.command()
+def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
+          method: str = typer.Option("colmap", help="gt | colmap | charuco"),
+          out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../poses/<method>)"),
+          self_calibrate: bool = typer.Option(False, help="refine intrinsics (and distortion) too"),
+          image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
+          max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
+          matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | sequential"),
+          quiet: bool = QUIET):
+    """Estimate camera poses from a capture's images and score them against its ground truth."""
+    from recon.poses import CharucoConfig, ColmapConfig
+
+    from .stages.poses import PosesConfig, run_poses
+
+    try:
+        cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=not self_calibrate, image_scale=image_scale,
+                                              max_features=max_features, matcher=matcher),
+                          charuco=CharucoConfig(calibrate=self_calibrate))
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    out = out or capture_dir.parent / "poses" / method
+    m = run_poses(capture_dir, method, out, cfg, quiet)
+    mt = m["metrics"]
+    typer.echo(f"poses {method}: {mt['views_registered']}/{mt['views_total']} views, "
+               f"rotation error {mt['rotation_error_deg_mean']:.4f} deg mean -> {out}")
 
 
 @app.command()

@@ -9,8 +9,11 @@ Layout::
     reference/manifest.json         spp, integrator, effects, per-view time and noise
 
 View names match the capture's, so any two stages' images of a view pair up by name.
-A view is rendered in fixed batches of samples merged exactly (render.film.merge_results), so
-the result does not depend on how the work is split, and the progress bar moves per batch.
+A view is rendered in fixed batches of SAMPLE_BATCH samples (the units of work), whose film
+moments are summed by a left fold in sample order (as render.film.merge_results does), so the
+result does not depend on where or in how many processes the batches ran: byte-identical
+outputs in process and on a Dask cluster of any size (pipeline.distributed). The progress bar
+moves per batch.
 """
 from __future__ import annotations
 
@@ -22,14 +25,15 @@ import numpy as np
 from render import pathtracer
 from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
-from render.film import merge_results
+from render.film import Film, RenderResult
 from render.image_io import write_exr, write_preview
 from rig.build import RigScene
 
 from ..artifacts import BadInput, Manifest, atomic_stage
+from ..distributed import ClusterConfig, engine, worker_cache
 from ..progress import progress_bar
 
-__all__ = ["run_reference", "select_views", "resize_camera", "SAMPLE_BATCH"]
+__all__ = ["run_reference", "select_views", "resize_camera", "render_batch", "fold_batches", "finish_view", "SAMPLE_BATCH"]
 
 #: samples per pixel rendered per unit of work; fixed, so results never depend on the split
 SAMPLE_BATCH = 8
@@ -56,10 +60,40 @@ def select_views(rig: RigScene, views: str) -> list[tuple[str, Camera]]:
     return chosen
 
 
+def render_batch(scene, scene_key: str, cam: Camera, settings: pathtracer.RenderSettings,
+                 sample_range: tuple[int, int], effects: frozenset) -> tuple[Film, dict]:
+    """One unit of work: the film moments of ``sample_range`` of ``cam``'s view, and its stats.
+
+    Runs wherever the engine puts it; the scene's BVH is built once per process (keyed by
+    ``scene_key``, unique per run) and reused across batches and views."""
+    prepared = worker_cache(scene_key, lambda: pathtracer.prepare(scene))
+    result = pathtracer.render(scene, cam, settings, sample_range, effects, prepared)
+    return result.film, result.stats
+
+
+def fold_batches(acc: tuple[Film, dict], part: tuple[Film, dict]) -> tuple[Film, dict]:
+    """Merge the next batch (in sample order) into the accumulated moments: the same sums, in
+    the same order, as render.film.merge_results."""
+    (fa, sa), (fb, sb) = acc, part
+    stats = {k: sa.get(k, 0) + sb.get(k, 0) for k in set(sa) | set(sb)}
+    return fa.merged(fb), stats
+
+
+def finish_view(acc: tuple[Film, dict]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(H, W, 3) float32 mean and variance of a view's merged film, and its stats: what the
+    client needs (the float64 moments stay on the workers)."""
+    film, stats = acc
+    return film.mean(), film.variance(), stats
+
+
 def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, size: tuple[int, int] | None = None,
                   views: str = "test", integrator: str = "auto", seed: int = 0, max_depth: int = 8,
-                  quiet: bool = False) -> dict:
-    """Render the chosen views with the path tracer into ``out`` atomically; returns the manifest."""
+                  quiet: bool = False, cluster: ClusterConfig | None = None) -> dict:
+    """Render the chosen views with the path tracer into ``out`` atomically; returns the manifest.
+
+    cluster: where the batches run (pipeline.distributed): None (default) in this process; a
+    :class:`ClusterConfig` for a local or existing Dask cluster. The output files are the same
+    bytes either way."""
     if spp < 1:
         raise BadInput(f"--spp must be at least 1, got {spp}")
     if size is not None and (size[0] < 1 or size[1] < 1):
@@ -73,7 +107,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         raise BadInput(f"--integrator/--max-depth: {exc}") from None
     from render.effects import scene_effects
 
-    effects = scene_effects(rig.scene)
+    effects = frozenset(scene_effects(rig.scene))
     prepared = pathtracer.prepare(rig.scene)
     try:
         chosen_integrator = pathtracer.choose_integrator(effects, integrator, prepared.has_delta_lights)
@@ -86,28 +120,33 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)
     batches = [(a, min(a + SAMPLE_BATCH, spp)) for a in range(0, spp, SAMPLE_BATCH)]
-    per_view, paths, rays, seconds = {}, 0, 0, 0.0
-    with atomic_stage(out) as tmp, progress_bar(quiet) as bar:
+    per_view, totals = {}, {"paths": 0, "rays": 0, "time_s": 0.0}
+    with atomic_stage(out) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
         task = bar.add_task(f"reference {rig.scene.name}", total=len(chosen) * len(batches),
                             info=f"{chosen_integrator}, {spp} spp")
-        for split, cam in chosen:
-            result = None
-            for rng in batches:
-                part = pathtracer.render(rig.scene, cam, settings, rng, effects, prepared)
-                result = part if result is None else merge_results(result, part)
-                bar.advance(task)
-            write_exr(tmp / "linear" / f"{cam.name}.exr", result.mean)
-            write_exr(tmp / "variance" / f"{cam.name}.exr", result.variance)
-            write_preview(tmp / "images" / f"{cam.name}.png", result.mean)
-            per_view[cam.name] = {"time_s": round(result.stats["time_s"], 3),
-                                  "mean_radiance": float(result.mean.mean()),
-                                  "mean_stderr": float(np.sqrt(result.variance).mean())}
-            paths += result.stats["paths"]
-            rays += result.stats["rays"]
-            seconds += result.stats["time_s"]
+        scene = eng.share(rig.scene)
+        worker_cache(scene.key, lambda: prepared)  # in process, reuse the BVH built above
+        if eng.render_threads != settings.threads:  # threads never change a render's result
+            settings = replace(settings, threads=eng.render_threads)
+
+        def write_view(g: int, done: tuple[np.ndarray, np.ndarray, dict]) -> None:
+            mean, variance, stats = done
+            name = chosen[g][1].name
+            write_exr(tmp / "linear" / f"{name}.exr", mean)
+            write_exr(tmp / "variance" / f"{name}.exr", variance)
+            write_preview(tmp / "images" / f"{name}.png", mean)
+            per_view[name] = {"time_s": round(stats["time_s"], 3), "mean_radiance": float(mean.mean()),
+                              "mean_stderr": float(np.sqrt(variance).mean())}
+            for k in totals:
+                totals[k] += stats[k]
+
+        units = [[(scene.key, cam, settings, rng, effects) for rng in batches] for _, cam in chosen]
+        eng.fold_groups(render_batch, units, fold_batches, finish_view, shared=[scene], name="reference-batch",
+                        on_unit=lambda: bar.advance(task), on_group=write_view)
+        seconds = totals["time_s"]
         write_cameras_json(tmp / "cameras.json", [c for _, c in chosen], [s for s, _ in chosen])
-        manifest.metrics = {"views": len(chosen), "paths_per_s": paths / max(seconds, 1e-9),
-                            "rays_per_s": rays / max(seconds, 1e-9), "render_time_s": round(seconds, 3),
-                            "per_view": per_view}
+        manifest.metrics = {"views": len(chosen), "paths_per_s": totals["paths"] / max(seconds, 1e-9),
+                            "rays_per_s": totals["rays"] / max(seconds, 1e-9), "render_time_s": round(seconds, 3),
+                            "per_view": per_view, "engine": eng.name, "workers": eng.workers}
         result_manifest = manifest.write(tmp)
     return result_manifest
