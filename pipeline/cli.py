@@ -94,6 +94,31 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
 
 
 @app.command()
+def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
+         poses: Optional[Path] = typer.Option(None, help="a poses folder (default: the capture's own cameras)"),
+         out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../slab)"),
+         method: str = typer.Option("direct", help="direct (sheared cameras through the rig) | rebin (from the captures)"),
+         mode: str = typer.Option("depth", help="nearest | uv | st | quadrilinear | depth"),
+         uv_res: int = typer.Option(16, help="uv samples per side"),
+         st_res: int = typer.Option(192, help="st samples per side"),
+         reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
+         quiet: bool = QUIET):
+    """Build light slabs from a capture; render and score its held-out views."""
+    from recon.slab import LayoutConfig
+
+    from .stages.slab import SlabStageConfig, run_slab
+
+    try:
+        cfg = SlabStageConfig(method=method, mode=mode, layout=LayoutConfig(uv_res=uv_res, st_res=st_res))
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    out = out or capture_dir.parent / "slab"
+    m = run_slab(capture_dir, poses, out, cfg, reference, quiet)
+    mt = m["metrics"]
+    typer.echo(f"slab: {mt['mode']} PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} -> {out}")
+
+
+@app.command()
 def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
             no_sheet: bool = typer.Option(False, "--no-sheet", help="skip the contact sheet")):
     """Show what a stage folder holds: a table, and a contact sheet PNG of its previews."""

@@ -67,6 +67,9 @@ def raster_limitations(scene: Scene, effects: frozenset[str]) -> list[str]:
     for o in scene.objects:
         if not isinstance(o.material, Lambertian):
             reasons.append(f"object '{o.name}': {type(o.material).__name__} material needs the path tracer")
+    if "direct" in effects and scene.background.max() > 0:
+        reasons.append("a non-black background lights the scene as an environment, which the rasterizer "
+                       "does not simulate")
     if "shadows" in effects and any(isinstance(l, PointLight) for l in scene.lights):
         reasons.append("point-light shadows are not simulated by the rasterizer (use spot lights)")
     return reasons
