@@ -131,15 +131,15 @@ def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
 def run(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML"),
         root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
         seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
+        spp: int = typer.Option(16, help="reference samples per pixel"),
         quiet: bool = QUIET):
-    """Every stage in order, as dvc.yaml wires them."""
-    from .inspect import inspect_folder
-    from .stages.capture import run_capture
+    """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, then a summary."""
+    from .pipeline_run import run_pipeline
 
     rig, path = _load(scene)
-    cap = stage_dir(rig.scene.name, "capture", root)
-    run_capture(rig, path, cap, seed, quiet)
-    inspect_folder(cap)
+    summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, quiet=quiet)
+    for line in summary:
+        typer.echo(line)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,12 +18,14 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     work = tmp_path / "proj"
     work.mkdir()
     shutil.copy(REPO / "dvc.yaml", work)
-    for pkg in ("render", "rig"):  # the stage's code dependencies
+    for pkg in ("render", "rig", "recon", "pipeline"):  # the stages' code dependencies
         shutil.copytree(REPO / pkg, work / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     write_scene(work / "scenes", TINY_SCENE)
     params = yaml.safe_load((REPO / "params.yaml").read_text())
     params.update(scene="tiny")
     params["reference"]["spp"] = 4
+    params["poses"]["method"] = "gt"  # six 128x96 views are too few for SfM; the stage wiring is what is tested
+    params["slab"].update(uv_res=4, st_res=24)
     (work / "params.yaml").write_text(yaml.safe_dump(params))
     bin_dir = Path(sys.executable).parent
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "DVC_NO_ANALYTICS": "1"}
@@ -36,6 +38,8 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     assert m["stage"] == "capture" and m["metrics"]["views"] == 6
     ref = read_manifest(work / "artifacts" / "tiny" / "reference")
     assert ref["params"]["spp"] == 4 and ref["metrics"]["views"] == 2
+    assert read_manifest(work / "artifacts" / "tiny" / "poses" / "gt")["stage"] == "poses"
+    assert read_manifest(work / "artifacts" / "tiny" / "slab")["stage"] == "slab"
     assert (work / "dvc.lock").is_file()
     second = run("repro")
     assert second.returncode == 0 and "didn't change" in second.stdout + second.stderr

@@ -1,0 +1,57 @@
+"""``lumigraph run``: every stage in order for one scene, with the defaults of params.yaml."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from rig.build import RigScene
+
+from .artifacts import BadInput, stage_dir
+from .inspect import inspect_folder
+
+__all__ = ["run_pipeline"]
+
+
+def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
+                 quiet: bool = False) -> list[str]:
+    """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab.
+
+    Returns summary lines. A stage that fails on its input (BadInput) stops the run: later
+    stages would only consume a missing artifact.
+    """
+    from .stages.capture import run_capture
+    from .stages.poses import run_poses
+    from .stages.reference import run_reference
+    from .stages.slab import run_slab
+
+    name = rig.scene.name
+    t0 = time.perf_counter()
+    lines = []
+    cap = stage_dir(name, "capture", root)
+    m = run_capture(rig, scene_file, cap, seed, quiet)
+    lines.append(f"capture    {m['metrics']['views']} views, {m['params']['renderer']}, {m['wall_time_s']:.1f} s")
+    if not quiet:
+        inspect_folder(cap)
+    if "test" not in rig.cameras:
+        lines.append("no held-out views: the model stages need a 'test' split; stopping after capture")
+        return lines
+    ref = stage_dir(name, "reference", root)
+    m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet)
+    lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
+                 f"{m['wall_time_s']:.1f} s")
+    methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])
+    for method in methods:
+        out = stage_dir(name, f"poses/{method}", root)
+        try:
+            m = run_poses(cap, method, out, quiet=quiet)
+        except BadInput as exc:  # a failed estimate is a finding, recorded in its metrics.json
+            lines.append(f"poses      {method}: failed: {exc}")
+            continue
+        mt = m["metrics"]
+        lines.append(f"poses      {method}: {mt['views_registered']}/{mt['views_total']} views, rotation error "
+                     f"{mt['rotation_error_deg_mean']:.4f} deg mean, {m['wall_time_s']:.1f} s")
+    m = run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet)
+    lines.append(f"slab       {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
+                 f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
+    lines.append(f"total      {time.perf_counter() - t0:.1f} s; artifacts in {Path(root) / name}")
+    return lines
