@@ -1,0 +1,495 @@
+"""``lumigraph report``: one self-contained HTML page judging every model of a scene.
+
+``write_report(artifacts_dir)`` reads the scene's artifacts (``artifacts/<scene>``: every stage's
+manifest, the ``validate`` stage's metrics and error maps, the reference and model renders, the
+poses' metrics, NeRF ``curve.csv`` files and the ``study`` folder when present) and writes
+``validate/report.html``. The page needs nothing else: images are PNG data URIs, plots are inline
+SVG drawn here (no plotting library), styles are inline, there is no script. Sections:
+
+1. at a glance: the best model at the held-out views, its time, the Pareto-optimal models;
+2. models: accuracy (PSNR, SSIM, truth estimate, reference noise share, Z-test) against time;
+3. accuracy versus time: every model on one plot, NeRF training curves, the study's fronts;
+4. side-by-side views: reference (and its noise), each model's render, error map and Z-map;
+5. pose accuracy; 6. per stage what it produced (manifest: time, outputs, headline metrics).
+
+The SVG helpers (:func:`svg_plot`, :func:`pareto_mask`) are shared with :mod:`pipeline.stages.study`.
+"""
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from render.color import to_srgb8
+from render.image_io import atomic_path, read_exr
+
+from .artifacts import MANIFEST, BadInput, read_json
+
+__all__ = ["Series", "svg_plot", "pareto_mask", "write_report", "REPORT", "PALETTE"]
+
+REPORT = "report.html"
+PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+           "#7f7f7f", "#bcbd22")
+
+
+# ------------------------------------------------------------------------------------- plots
+
+
+@dataclass
+class Series:
+    """One series of a plot: points (x, y) with an optional label each (shown beside the point
+    when ``annotate``, always as a tooltip); ``line`` joins the points in x order."""
+
+    name: str
+    x: list[float]
+    y: list[float]
+    labels: list[str] = field(default_factory=list)
+    colour: str = ""
+    line: bool = False
+    annotate: bool = False
+    dashed: bool = False
+
+
+def pareto_mask(cost, accuracy) -> np.ndarray:
+    """(N,) bool: points no other point dominates (no other has cost <= and accuracy >= with one
+    strict). Lower cost and higher accuracy are better; non-finite entries are never optimal."""
+    c, a = np.asarray(cost, float), np.asarray(accuracy, float)
+    ok = np.isfinite(c) & np.isfinite(a)
+    le_c = c[None, :] <= c[:, None]  # [i, j]: j costs no more than i
+    ge_a = a[None, :] >= a[:, None]
+    strict = (c[None, :] < c[:, None]) | (a[None, :] > a[:, None])
+    dom = le_c & ge_a & strict & ok[None, :]
+    return ok & ~dom.any(axis=1)
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 6) -> list[float]:
+    span = hi - lo if hi > lo else 1.0
+    raw = span / max(n - 1, 1)
+    mag = 10 ** math.floor(math.log10(raw))
+    step = next(s * mag for s in (1, 2, 2.5, 5, 10) if s * mag >= raw)
+    start = math.ceil(lo / step - 1e-9) * step
+    return [start + i * step for i in range(int((hi - start) / step + 1e-9) + 1)]
+
+
+def _log_ticks(lo: float, hi: float) -> list[float]:
+    ticks = []
+    for e in range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1):
+        for m in (1, 2, 5):
+            t = m * 10.0 ** e
+            if lo <= t <= hi:
+                ticks.append(t)
+    return ticks or [lo, hi]
+
+
+def _fmt_tick(v: float) -> str:
+    if v == 0:
+        return "0"
+    if abs(v) >= 1000 or abs(v) < 0.01:
+        return f"{v:.0e}".replace("e+0", "e").replace("e-0", "e-")
+    return f"{v:g}"
+
+
+def svg_plot(series: list[Series], xlabel: str, ylabel: str, title: str = "", logx: bool = False,
+             hlines: list[tuple[float, str]] = (), width: int = 720, height: int = 400) -> str:
+    """A dependency-free SVG scatter/line plot. Non-finite points are dropped; ``logx`` needs
+    positive x. ``hlines``: (y, label) dashed reference lines (e.g. the reference noise ceiling).
+    Returns the ``<svg>`` element text (no XML declaration, no ids: safe to inline many times)."""
+    e = html.escape
+    pts = [(x, y) for s in series for x, y in zip(s.x, s.y)
+           if math.isfinite(x) and math.isfinite(y) and (x > 0 or not logx)]
+    L, R, T, B = 64, 190, 30 if title else 14, 46
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 {width} {height}" width="{width}" '
+           f'height="{height}" font-family="sans-serif" font-size="11" role="img">',
+           f'<rect width="{width}" height="{height}" fill="white"/>']
+    if title:
+        out.append(f'<text x="{width / 2:.0f}" y="18" text-anchor="middle" font-size="13" font-weight="bold">'
+                   f'{e(title)}</text>')
+    if not pts:
+        out.append(f'<text x="{width / 2:.0f}" y="{height / 2:.0f}" text-anchor="middle">no data</text></svg>')
+        return "\n".join(out) + "\n"
+    xs = np.array([p[0] for p in pts])
+    ys = np.array([p[1] for p in pts] + [h for h, _ in hlines if math.isfinite(h)])
+    if logx:
+        lx0, lx1 = math.log10(xs.min()), math.log10(xs.max())
+        pad = max(0.08 * (lx1 - lx0), 0.1)
+        x0, x1 = 10 ** (lx0 - pad), 10 ** (lx1 + pad)
+        fx = lambda v: (math.log10(v) - math.log10(x0)) / (math.log10(x1) - math.log10(x0))  # noqa: E731
+        xt = _log_ticks(x0, x1)
+    else:
+        pad = max(0.05 * (xs.max() - xs.min()), 1e-9 + 0.05 * abs(xs.max()))
+        x0, x1 = xs.min() - pad, xs.max() + pad
+        fx = lambda v: (v - x0) / (x1 - x0)  # noqa: E731
+        xt = [t for t in _nice_ticks(x0, x1) if x0 <= t <= x1]
+    ypad = max(0.06 * (ys.max() - ys.min()), 1e-9 + 0.02 * abs(ys.max()), 0.05)
+    y0, y1 = ys.min() - ypad, ys.max() + ypad
+    W, H = width - L - R, height - T - B
+    X = lambda v: L + fx(v) * W  # noqa: E731
+    Y = lambda v: T + H - (v - y0) / (y1 - y0) * H  # noqa: E731
+    out.append(f'<rect x="{L}" y="{T}" width="{W}" height="{H}" fill="none" stroke="#444"/>')
+    for t in xt:
+        out.append(f'<line x1="{X(t):.1f}" y1="{T}" x2="{X(t):.1f}" y2="{T + H}" stroke="#e4e4e4"/>'
+                   f'<text x="{X(t):.1f}" y="{T + H + 14}" text-anchor="middle">{_fmt_tick(t)}</text>')
+    for t in _nice_ticks(y0, y1):
+        if y0 <= t <= y1:
+            out.append(f'<line x1="{L}" y1="{Y(t):.1f}" x2="{L + W}" y2="{Y(t):.1f}" stroke="#e4e4e4"/>'
+                       f'<text x="{L - 5}" y="{Y(t) + 4:.1f}" text-anchor="end">{_fmt_tick(t)}</text>')
+    out.append(f'<text x="{L + W / 2:.0f}" y="{height - 8}" text-anchor="middle">{e(xlabel)}'
+               f'{" (log scale)" if logx else ""}</text>')
+    out.append(f'<text x="14" y="{T + H / 2:.0f}" transform="rotate(-90 14 {T + H / 2:.0f})" '
+               f'text-anchor="middle">{e(ylabel)}</text>')
+    for h, label in hlines:
+        if math.isfinite(h):
+            out.append(f'<line x1="{L}" y1="{Y(h):.1f}" x2="{L + W}" y2="{Y(h):.1f}" stroke="#555" '
+                       f'stroke-dasharray="5 4"/><text x="{L + W - 4}" y="{Y(h) - 4:.1f}" text-anchor="end" '
+                       f'fill="#555">{e(label)}</text>')
+    legend_y = T + 4
+    for i, s in enumerate(series):
+        c = s.colour or PALETTE[i % len(PALETTE)]
+        labels = s.labels or [""] * len(s.x)
+        good = [(x, y, lab) for x, y, lab in zip(s.x, s.y, labels)
+                if math.isfinite(x) and math.isfinite(y) and (x > 0 or not logx)]
+        if s.line and len(good) > 1:
+            dash = ' stroke-dasharray="6 3"' if s.dashed else ""
+            out.append(f'<polyline fill="none" stroke="{c}" stroke-width="1.8"{dash} points="'
+                       + " ".join(f"{X(x):.1f},{Y(y):.1f}" for x, y, _ in sorted(good)) + '"/>')
+        for x, y, lab in good:
+            tip = f"{s.name}{': ' + lab if lab else ''} ({_fmt_tick(x)}, {y:.3g})"
+            out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{c}" stroke="white" stroke-width="0.8">'
+                       f'<title>{e(tip)}</title></circle>')
+            if s.annotate and lab:
+                out.append(f'<text x="{X(x) + 6:.1f}" y="{Y(y) - 5:.1f}" fill="{c}">{e(lab)}</text>')
+        out.append(f'<rect x="{L + W + 12}" y="{legend_y}" width="10" height="10" fill="{c}"/>'
+                   f'<text x="{L + W + 27}" y="{legend_y + 9}">{e(s.name[:28])}</text>')
+        legend_y += 16
+    out.append("</svg>")
+    return "\n".join(out) + "\n"
+
+
+# ------------------------------------------------------------------------------------- images
+
+
+def _png_uri(img: np.ndarray, max_width: int) -> str:
+    """A data URI of a uint8 (H, W) / (H, W, 3) image, downscaled (box filter) to ``max_width``."""
+    im = Image.fromarray(img)
+    if im.width > max_width:
+        im = im.resize((max_width, max(1, round(im.height * max_width / im.width))), Image.BOX)
+    buf = io.BytesIO()
+    im.save(buf, format="PNG", optimize=True)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _exr_uri(path: Path, max_width: int) -> str | None:
+    if not path.is_file():
+        return None
+    a = read_exr(path)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if not np.all(np.isfinite(a)):
+        return None
+    return _png_uri(to_srgb8(a), max_width)
+
+
+def _file_uri(path: Path, max_width: int) -> str | None:
+    if not path.is_file():
+        return None
+    with Image.open(path) as im:
+        return _png_uri(np.asarray(im.convert("RGB")), max_width)
+
+
+def _noise_uri(path: Path, gain: float, max_width: int) -> str | None:
+    """The reference's standard deviation sqrt(var), grey, on the error maps' scale."""
+    if not path.is_file():
+        return None
+    v = read_exr(path)
+    sd = np.sqrt(np.maximum(v if v.ndim == 2 else v.mean(axis=2), 0.0))
+    return _png_uri(to_srgb8(np.repeat(sd[..., None], 3, axis=2), gain), max_width)
+
+
+# ------------------------------------------------------------------------------------- reading
+
+
+def _stage_folders(root: Path, max_depth: int = 3) -> list[Path]:
+    """Folders under ``root`` holding a manifest, or a metrics.json with a status (failed poses)."""
+    found = []
+    for dirpath, dirnames, files in os.walk(root):
+        rel = Path(dirpath).relative_to(root)
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith(".")) if len(rel.parts) < max_depth else []
+        if rel.parts and (MANIFEST in files or "metrics.json" in files):
+            found.append(Path(dirpath))
+    return sorted(found)
+
+
+def _read_curve(path: Path) -> tuple[list[float], list[float]] | None:
+    """(seconds, PSNR) from a NeRF ``curve.csv``: the first column naming time/seconds/minutes and
+    the first naming PSNR; None when unreadable."""
+    try:
+        rows = list(csv.DictReader(path.open()))
+    except (OSError, csv.Error):
+        return None
+    if not rows:
+        return None
+    cols = list(rows[0])
+    tcol = next((c for c in cols if any(k in c.lower() for k in ("time", "second", "wall", "_s"))), None)
+    mcol = next((c for c in cols if "minute" in c.lower()), None)
+    pcol = next((c for c in cols if "psnr" in c.lower()), None)
+    if pcol is None or (tcol is None and mcol is None):
+        return None
+    xs, ys = [], []
+    for r in rows:
+        try:
+            t = float(r[tcol]) if tcol else 60.0 * float(r[mcol])
+            p = float(r[pcol])
+        except (TypeError, ValueError):
+            continue
+        if math.isfinite(t) and math.isfinite(p) and t > 0:
+            xs.append(t)
+            ys.append(p)
+    return (xs, ys) if xs else None
+
+
+def _fmt(v, digits: int = 3) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return "–"
+        if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+            return f"{v:.{digits}g}"
+        return f"{v:.{digits}f}".rstrip("0").rstrip(".") if abs(v) < 10 else f"{v:.{max(digits - 1, 1)}f}"
+    return str(v)
+
+
+def _duration(s: float | None) -> str:
+    if s is None or not math.isfinite(s):
+        return "–"
+    return f"{s:.1f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+# ------------------------------------------------------------------------------------- page
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:24px;color:#222;max-width:1500px}
+h1{margin-bottom:4px} h2{border-bottom:1px solid #ccc;padding-bottom:4px;margin-top:36px}
+table{border-collapse:collapse;font-size:13px;margin:8px 0}
+th,td{border:1px solid #ddd;padding:3px 8px;text-align:right} th{background:#f3f3f3}
+td:first-child,th:first-child{text-align:left}
+tr.best td{background:#e8f5e9;font-weight:bold} tr.failed td{color:#b00}
+.glance{background:#f6f8fa;border:1px solid #d0d7de;padding:10px 16px;border-radius:6px;font-size:15px}
+.views{overflow-x:auto} .grid{border-collapse:collapse} .grid td{border:none;padding:2px;vertical-align:top;text-align:center}
+.grid img{display:block;image-rendering:pixelated} .cap{font-size:11px;color:#555}
+.note{font-size:12px;color:#555} .plots svg{margin:6px 6px 6px 0;border:1px solid #eee}
+"""
+
+
+def _table(header: list[str], rows: list[list], classes: list[str] | None = None) -> str:
+    e = html.escape
+    h = "".join(f"<th>{e(c)}</th>" for c in header)
+    body = []
+    for i, r in enumerate(rows):
+        cls = f' class="{classes[i]}"' if classes and classes[i] else ""
+        body.append(f"<tr{cls}>" + "".join(f"<td>{e(_fmt(c))}</td>" for c in r) + "</tr>")
+    return f"<table><tr>{h}</tr>{''.join(body)}</table>"
+
+
+def _glance(models: dict, best: dict | None, ref: dict, front: list[str]) -> str:
+    e = html.escape
+    if not best:
+        return '<p class="glance">No model could be scored.</p>'
+    b = models[best["model"]]
+    lines = [f"<b>Best at the held-out views: {e(best['model'])}</b> — PSNR {b['psnr_mean']:.2f} dB, "
+             f"SSIM {b['ssim_mean']:.4f}, {e(_duration(b['end_to_end_s']))} end to end "
+             f"({e(_duration(b['time_s']))} for the model stage itself)."]
+    cheaper = [n for n in front if n != best["model"] and models[n]["end_to_end_s"] < b["end_to_end_s"]]
+    if cheaper:
+        lines.append("Cheaper, on the Pareto front: " + "; ".join(
+            f"{e(n)} {models[n]['psnr_mean']:.2f} dB in {e(_duration(models[n]['end_to_end_s']))}" for n in cheaper) + ".")
+    ceil = ref.get("psnr_noise_ceiling_mean")
+    if ceil is not None:
+        lines.append(f"The reference ({e(str(ref.get('spp')))} spp, {e(str(ref.get('integrator')))}) limits what can be "
+                     f"measured to about {ceil:.1f} dB PSNR (its own noise); the best model's difference is "
+                     f"{100 * (b.get('noise_share_mean') or 0):.1f}% reference noise.")
+    return '<div class="glance">' + "<br>".join(lines) + "</div>"
+
+
+def _models_section(models: dict, best: str | None, front: list[str]) -> str:
+    names = sorted(models, key=lambda n: -(models[n]["psnr_mean"] if models[n]["psnr_mean"] is not None else -1e9))
+    header = ["model", "poses", "PSNR dB", "SSIM", "PSNR vs truth (est.) dB", "ref. noise share",
+              "Z-test within noise", "stage time", "end to end", "Pareto"]
+    rows = [[n, models[n]["poses"], models[n]["psnr_mean"], models[n]["ssim_mean"], models[n]["psnr_truth_est_mean"],
+             models[n]["noise_share_mean"], models[n]["z_within_fraction_mean"], _duration(models[n]["time_s"]),
+             _duration(models[n]["end_to_end_s"]), n in front] for n in names]
+    note = ('<p class="note">Means over the held-out views. "PSNR vs truth (est.)" removes the reference\'s own noise '
+            '(mse minus mean reference variance; – when the difference is within that noise). "ref. noise share": the '
+            'fraction of the squared error the reference noise explains. "Z-test within noise": fraction of pixel '
+            'channels within the two-sided per-pixel Z-test. End to end = capture + poses (when estimated) + the model '
+            'stage.</p>')
+    return _table(header, rows, ["best" if n == best else "" for n in names]) + note
+
+
+def _plots_section(models: dict, ref: dict, root: Path, validate_dir: Path) -> str:
+    parts = []
+    ceil = ref.get("psnr_noise_ceiling_mean")
+    hl = [(ceil, "reference noise ceiling")] if ceil is not None else []
+    series = [Series(n, [m["end_to_end_s"]], [m["psnr_mean"]], [n], annotate=True)
+              for n, m in sorted(models.items()) if m["psnr_mean"] is not None and m["end_to_end_s"] > 0]
+    parts.append(svg_plot(series, "end-to-end time (s)", "PSNR at held-out views (dB)",
+                          "Every model: accuracy against time", logx=True, hlines=hl))
+    curves = []
+    for f in sorted(root.glob("nerf/*/curve.csv")):
+        c = _read_curve(f)
+        if c:
+            curves.append(Series(f.parent.relative_to(root).as_posix(), c[0], c[1], line=True))
+    if curves:
+        parts.append(svg_plot(curves, "training time (s)", "held-out PSNR (dB)", "NeRF training curves",
+                              logx=True, hlines=hl))
+    study = root / "study"
+    svgs = sorted(study.glob("*.svg")) if (study / MANIFEST).is_file() else []
+    for s in svgs:
+        text = s.read_text()
+        if text.lstrip().startswith("<svg"):
+            parts.append(text)
+    out = '<div class="plots">' + "".join(parts) + "</div>"
+    if (study / "pareto.csv").is_file():
+        rows = list(csv.DictReader((study / "pareto.csv").open()))
+        if rows:
+            cols = list(rows[0])
+            out += "<h3>Study: Pareto-optimal settings</h3>" + _table(cols, [[r[c] for c in cols] for r in rows])
+    elif not svgs:
+        out += '<p class="note">No study folder: run <code>lumigraph study SCENE</code> for per-stage fronts.</p>'
+    return out
+
+
+def _views_section(root: Path, validate_dir: Path, models: dict, views: list[str], gain: float, max_views: int,
+                   thumb: int) -> str:
+    e = html.escape
+    from .stages.validate import _slug
+
+    blocks = []
+    for v in views[:max_views]:
+        cols = [("reference", _exr_uri(root / "reference" / "linear" / f"{v}.exr", thumb),
+                 _noise_uri(root / "reference" / "variance" / f"{v}.exr", gain, thumb), None)]
+        for n in sorted(models):
+            cols.append((n, _exr_uri(root / n / "renders" / f"{v}.exr", thumb),
+                         _file_uri(validate_dir / "errors" / _slug(n) / f"{v}.png", thumb),
+                         _file_uri(validate_dir / "zmaps" / _slug(n) / f"{v}.png", thumb)))
+        rows = []
+        for k, what in ((1, "render"), (2, "|error| ×%g (reference: its noise σ, same scale)" % gain), (3, "Z-map")):
+            cells = []
+            for c in cols:
+                uri = c[k]
+                if uri:
+                    cells.append(f'<td><img src="{uri}" alt="{e(c[0])} {e(what)} {e(v)}" width="{thumb}"></td>')
+                else:
+                    cells.append("<td></td>")
+            rows.append(f'<tr>{"".join(cells)}<td class="cap">{e(what)}</td></tr>')
+        head = "".join(f'<td class="cap">{e(c[0])}'
+                       + (f"<br>{models[c[0]]['per_view'][v]['psnr']:.2f} dB" if c[0] in models
+                          and models[c[0]]["per_view"][v]["psnr"] is not None else "") + "</td>" for c in cols)
+        blocks.append(f"<h3>{e(v)}</h3><div class='views'><table class='grid'><tr>{head}</tr>{''.join(rows)}</table></div>")
+    if len(views) > max_views:
+        blocks.append(f'<p class="note">{len(views) - max_views} more held-out views are scored in the tables '
+                      f'(validate/errors, validate/zmaps hold all of them).</p>')
+    blocks.append('<p class="note">Z-map: grey where the difference is within the reference\'s noise (darker = '
+                  'smaller), red where it exceeds it.</p>')
+    return "".join(blocks)
+
+
+def _poses_section(poses: dict) -> str:
+    if not poses:
+        return '<p class="note">No poses stage.</p>'
+    header = ["method", "status", "registered", "rotation error mean (deg)", "rotation error max (deg)",
+              "centre error mean (rel.)", "reprojection (px)", "time"]
+    rows, cls = [], []
+    for m, p in sorted(poses.items()):
+        reg = f"{p.get('views_registered', '–')}/{p.get('views_total', '–')}"
+        rows.append([m, p.get("status", "ok") + (f": {p['reason']}" if p.get("reason") else ""), reg,
+                     p.get("rotation_error_deg_mean"), p.get("rotation_error_deg_max"), p.get("center_error_rel_mean"),
+                     p.get("reprojection_error_px"), _duration(p.get("wall_time_s"))])
+        cls.append("failed" if p.get("status") == "failed" else "")
+    return _table(header, rows, cls)
+
+
+def _stages_section(root: Path) -> str:
+    rows, cls = [], []
+    for f in _stage_folders(root):
+        rel = f.relative_to(root).as_posix()
+        if (f / MANIFEST).is_file():
+            m = read_json(f / MANIFEST)
+            outs = m.get("outputs", {})
+            size = sum((f / o).stat().st_size for o in outs if (f / o).is_file())
+            kinds = sorted({Path(o).parts[0] if len(Path(o).parts) > 1 else Path(o).name for o in outs})
+            head = {k: v for k, v in m.get("metrics", {}).items()
+                    if isinstance(v, (int, float, str)) and not isinstance(v, bool)}
+            heads = ", ".join(f"{k} {_fmt(v)}" for k, v in list(head.items())[:6])
+            rows.append([rel, m.get("stage", "?"), _duration(m.get("wall_time_s")), len(outs),
+                         f"{size / 1e6:.1f} MB", ", ".join(kinds)[:90], heads[:160]])
+            cls.append("")
+        else:
+            mt = read_json(f / "metrics.json")
+            if mt.get("status") == "failed":
+                rows.append([rel, "failed", _duration(mt.get("wall_time_s")), 0, "–", "metrics.json",
+                             str(mt.get("reason", ""))[:160]])
+                cls.append("failed")
+    return _table(["folder", "stage", "wall time", "files", "size", "produced", "headline metrics"], rows, cls)
+
+
+def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 4, thumb: int = 320) -> Path:
+    """Write the scene's report (default ``artifacts_dir/validate/report.html``) from its finished
+    ``validate`` stage and the other stage folders; returns its path. BadInput when the validate
+    stage is missing or unfinished. Images are embedded, downscaled to ``thumb`` pixels wide;
+    side-by-side views show the first ``max_views`` held-out views."""
+    from .artifacts import read_manifest
+
+    root = Path(artifacts_dir)
+    vdir = root / "validate"
+    vman = read_manifest(vdir)
+    met = read_json(vdir / "metrics.json")
+    models, ref, best = met.get("models", {}), met.get("reference", {}), met.get("best")
+    if not isinstance(models, dict):
+        raise BadInput(f"{vdir / 'metrics.json'}: 'models' is not an object")
+    names = sorted(models)
+    mask = pareto_mask([models[n]["end_to_end_s"] for n in names],
+                       [models[n]["psnr_mean"] if models[n]["psnr_mean"] is not None else float("nan") for n in names])
+    front = sorted((n for n, k in zip(names, mask) if k), key=lambda n: models[n]["end_to_end_s"])
+    views = list(vman.get("params", {}).get("views", []))
+    gain = float(vman.get("params", {}).get("error_gain", 8.0))
+    e = html.escape
+    scene = root.resolve().name
+    body = [f"<h1>lumigraph report: {e(scene)}</h1>",
+            f'<p class="note">{len(models)} models judged on {len(views)} held-out views against the path-traced '
+            f"reference ({e(str(ref.get('spp')))} spp, {e(str(ref.get('integrator')))}). "
+            f"lumigraph {e(str(vman.get('lumigraph', '')))}.</p>",
+            _glance(models, best, ref, front),
+            "<h2>Models at the held-out views</h2>", _models_section(models, best and best["model"], front),
+            "<h2>Accuracy against time</h2>", _plots_section(models, ref, root, vdir),
+            "<h2>Side by side</h2>", _views_section(root, vdir, models, views, gain, max_views, thumb),
+            "<h2>Pose accuracy</h2>", _poses_section(met.get("poses", {})),
+            "<h2>Stages: what each produced</h2>", _stages_section(root)]
+    page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>lumigraph report: {e(scene)}</title>"
+            '<meta http-equiv="Content-Security-Policy" content="default-src \'none\'; img-src data:; '
+            "style-src 'unsafe-inline'\">"
+            f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+    path = Path(out) if out is not None else vdir / REPORT
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(page, encoding="utf-8")
+    return path
+
+
+if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph report`
+    import sys
+
+    print(write_report(Path(sys.argv[1])))
