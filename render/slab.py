@@ -33,7 +33,6 @@ edge samples.
 """
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -41,8 +40,8 @@ import numpy as np
 
 from .camera import Camera, Intrinsics
 
-__all__ = ["MODES", "SlabGeometry", "LightSlab", "SlabHits", "slab_coordinates", "lookup",
-           "select_slabs", "render_rays", "render_view", "camera_hits", "sheared_camera"]
+__all__ = ["MODES", "SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "slab_coordinates", "lookup",
+           "select_slabs", "render_rays", "render_view", "sheared_camera"]
 
 MODES = ("nearest", "uv", "st", "quadrilinear", "depth")
 
@@ -148,24 +147,81 @@ class SlabGeometry:
                    tuple(int(n) for n in d["shape"]), str(d.get("name", "slab")))
 
 
+#: codeword indices of up to 2**16 entries are stored as uint16, larger codebooks as uint32
+_CODE_DTYPES = (np.uint16, np.uint32)
+
+
+@dataclass
+class VQRadiance:
+    """Slab radiance vector-quantized in tiles of 2 x 2 x 2 x 2 rays (Levoy and Hanrahan 1996, 4.1).
+
+    codes: (Tv, Tu, Tt, Ts) uint16 (uint32 for codebooks beyond 65536 entries) with T = ceil(N / 2)
+    per axis: each tile's codeword. codebook: (K, 2, 2, 2, 2, 3) float32, one tile's rays in axis
+    order (v, u, t, s), linear RGB. Ray (iv, iu, it, is) of the slab is
+    ``codebook[codes[iv // 2, iu // 2, it // 2, is // 2], iv % 2, iu % 2, it % 2, is % 2]``.
+    shape: the decoded array's (Nv, Nu, Nt, Ns, 3); with an odd count the last tile is half used.
+    The renderer looks rays up through the codebook directly (two gathers instead of one).
+    """
+
+    codes: np.ndarray
+    codebook: np.ndarray
+    shape: tuple[int, int, int, int, int]
+
+    def __post_init__(self) -> None:
+        self.shape = tuple(int(n) for n in self.shape)
+        if len(self.shape) != 5 or self.shape[4] != 3 or min(self.shape) < 1:
+            raise ValueError(f"VQ radiance shape must be (Nv, Nu, Nt, Ns, 3), got {self.shape}")
+        tiles = tuple((n + 1) // 2 for n in self.shape[:4])
+        if self.codes.shape != tiles or self.codes.dtype not in _CODE_DTYPES:
+            raise ValueError(f"VQ codes must be {tiles} uint16/uint32, got {self.codes.shape} {self.codes.dtype}")
+        cb = self.codebook
+        if cb.ndim != 6 or cb.shape[1:] != (2, 2, 2, 2, 3) or cb.dtype != np.float32 or len(cb) < 1:
+            raise ValueError(f"VQ codebook must be (K, 2, 2, 2, 2, 3) float32, got {cb.shape} {cb.dtype}")
+        if self.codes.size and int(self.codes.max()) >= len(cb):
+            raise ValueError(f"VQ codes index beyond the codebook's {len(cb)} entries")
+
+    dtype = np.dtype(np.float32)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.codes.nbytes + self.codebook.nbytes)
+
+    def decode(self, out: np.ndarray | None = None) -> np.ndarray:
+        """(Nv, Nu, Nt, Ns, 3) float32 radiance (into ``out`` when given, e.g. a memmap), decoded
+        one row of uv tiles at a time (bounded memory)."""
+        nv, nu, nt, ns, _ = self.shape
+        if out is None:
+            out = np.empty(self.shape, np.float32)
+        elif out.shape != self.shape:
+            raise ValueError(f"decode target must be {self.shape}, got {out.shape}")
+        tv, tu, tt, ts = self.codes.shape
+        for j in range(tv):
+            tiles = self.codebook[self.codes[j]]                       # (Tu, Tt, Ts, 2, 2, 2, 2, 3)
+            rows = tiles.transpose(3, 0, 4, 1, 5, 2, 6, 7).reshape(2, 2 * tu, 2 * tt, 2 * ts, 3)
+            take = min(2, nv - 2 * j)
+            out[2 * j:2 * j + take] = rows[:take, :nu, :nt, :ns]
+        return out
+
+
 @dataclass
 class LightSlab:
     """A slab's geometry and samples.
 
-    radiance: (Nv, Nu, Nt, Ns, 3) float32 linear RGB (a numpy array or memmap).
+    radiance: (Nv, Nu, Nt, Ns, 3) float32 linear RGB (a numpy array or memmap), or the same
+    vector-quantized (:class:`VQRadiance`).
     depth: optional (Nv, Nu, Nt, Ns) float32 distance along ``forward`` from the uv plane to the
     first surface (0 = nothing). focal_depth: distance from the uv plane of the focal plane the
     ``depth`` mode uses where there is no depth (None: the st plane, i.e. ``distance``).
     """
 
     geometry: SlabGeometry
-    radiance: np.ndarray
+    radiance: np.ndarray | VQRadiance
     depth: np.ndarray | None = None
     focal_depth: float | None = None
 
     def __post_init__(self) -> None:
         g = self.geometry
-        if self.radiance.shape != g.array_shape or self.radiance.dtype != np.float32:
+        if tuple(self.radiance.shape) != g.array_shape or self.radiance.dtype != np.float32:
             raise ValueError(f"slab {g.name!r}: radiance must be {g.array_shape} float32, "
                              f"got {self.radiance.shape} {self.radiance.dtype}")
         if self.depth is not None and (self.depth.shape != g.array_shape[:4] or self.depth.dtype != np.float32):
@@ -177,6 +233,10 @@ class LightSlab:
     @property
     def nbytes(self) -> int:
         return int(self.radiance.nbytes + (0 if self.depth is None else self.depth.nbytes))
+
+    @property
+    def compressed(self) -> bool:
+        return isinstance(self.radiance, VQRadiance)
 
 
 @dataclass
@@ -236,96 +296,111 @@ def slab_coordinates(geom: SlabGeometry, origins: np.ndarray, dirs: np.ndarray) 
     return SlabHits(np.where(ok[:, None], uv, 0.0), np.where(ok[:, None], st, 0.0), coords, ok, np.where(ok, cos, 0.0))
 
 
-def _taps(x: np.ndarray, n: int, linear: bool) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    """Sample indices and weights along one axis of ``n`` cell-centred samples for parameters
-    ``x`` (N,) in [0, 1]: one nearest tap (weight None = 1) or two linear taps, edge-clamped."""
-    c = np.clip(x * n - 0.5, 0.0, n - 1.0)
+def _axis(c: np.ndarray, n: int, linear: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Taps along one axis of ``n`` samples at continuous sample coordinates ``c`` (...) (sample i
+    at c = i, i.e. c = x n - 0.5 for a parameter x in [0, 1]), edge-clamped.
+
+    Returns ``(index (..., K) intp, weight (..., K) float32 or None)``: K = 1 nearest tap (weight
+    None = 1), or K = 2 linear taps."""
+    c = np.clip(c, 0.0, n - 1.0)
     if not linear or n == 1:
-        return [(np.minimum(np.floor(c + 0.5), n - 1).astype(np.int64), None)]
-    i0 = np.minimum(np.floor(c), n - 2).astype(np.int64)
-    f = (c - i0).astype(np.float32)
-    return [(i0, 1.0 - f), (i0 + 1, f)]
+        return np.floor(c + 0.5).astype(np.intp)[..., None], None
+    f0 = np.minimum(np.floor(c), n - 2.0)
+    f = (c - f0).astype(np.float32)
+    i0 = f0.astype(np.intp)
+    return np.stack([i0, i0 + 1], -1), np.stack([1 - f, f], -1)
 
 
-def _mul(a, b):
-    if a is None:
-        return b
-    if b is None:
-        return a
-    return a * b
+def _pairs(a: np.ndarray, b: np.ndarray, sa: int, sb: int) -> np.ndarray:
+    """(N, A * B) index parts ``a * sa + b * sb`` of every outer tap ``a`` (N, A) with its inner
+    taps ``b`` (N, A or 1, B)."""
+    return (a[:, :, None] * sa + b * sb).reshape(len(a), -1)
 
 
-def _gather(flat: np.ndarray, taps_v, taps_u, taps_t, taps_s, shape) -> np.ndarray:
-    """Sum of weighted samples over the product of per-axis taps; flat (Nv*Nu*Nt*Ns, C)."""
-    nu, nv, ns, nt = shape
-    uv = [(iv * nu + iu, _mul(wv, wu)) for (iv, wv), (iu, wu) in itertools.product(taps_v, taps_u)]
-    st = [(it * ns + is_, _mul(wt, ws)) for (it, wt), (is_, ws) in itertools.product(taps_t, taps_s)]
-    out = None
-    for (a, wa), (b, wb) in itertools.product(uv, st):
-        vals = np.take(flat, a * (nt * ns) + b, axis=0)
-        w = _mul(wa, wb)
-        if w is not None:
-            vals *= w[:, None]
-        if out is None:
-            out = vals.astype(np.float32, copy=False)
-        else:
-            out += vals
-    return out
+def _pair_weights(wa: np.ndarray | None, wb: np.ndarray | None, n: int) -> np.ndarray | None:
+    if wa is None and wb is None:
+        return None
+    w = wb if wa is None else (wa[:, :, None] if wb is None else wa[:, :, None] * wb)
+    return w.reshape(n, -1)
+
+
+def _fetch(radiance, iv, it, iu, is_) -> np.ndarray:
+    """(N, K, 3) float32 samples of every tap combination: rows (v, t) taps ``iv`` (N, A),
+    ``it`` (N, A|1, B) by columns (u, s) taps ``iu`` (N, C), ``is_`` (N, C|1, E); K = A B C E."""
+    n = len(iv)
+    if isinstance(radiance, VQRadiance):
+        tv, tu, tt, ts = radiance.codes.shape
+        tile = (_pairs(iv >> 1, it >> 1, tu * tt * ts, ts)[:, :, None]
+                + _pairs(iu >> 1, is_ >> 1, tt * ts, 1)[:, None, :]).reshape(n, -1)
+        off = (_pairs(iv & 1, it & 1, 8, 2)[:, :, None] + _pairs(iu & 1, is_ & 1, 4, 1)[:, None, :]).reshape(n, -1)
+        code = radiance.codes.reshape(-1).take(tile).astype(np.intp)
+        return radiance.codebook.reshape(-1, 3).take(code * 16 + off, axis=0)
+    nv, nu, nt, ns = radiance.shape[:4]
+    idx = (_pairs(iv, it, nu * nt * ns, ns)[:, :, None] + _pairs(iu, is_, nt * ns, 1)[:, None, :]).reshape(n, -1)
+    return np.asarray(radiance).reshape(-1, 3).take(idx, axis=0)
+
+
+def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
+    """(N, 3) float32 radiance at slab parameters u, v, s, t (N,) in [0, 1] (float32 or float64).
+
+    Every mode gathers the product of per-axis taps in one indexing operation. In ``depth`` mode
+    the s (t) taps depend on the u (v) tap: the ray of uv sample U through the focal point F on
+    the eye ray crosses st at P = U + (D / zeta) (F - U); in sample units that is
+    c_s' = c_s + (D / zeta - 1) (W_u n_s / (W_s n_u)) (c_u - i_u) with c_x = x n_x - 0.5."""
+    g = slab.geometry
+    nu, nv, ns, nt = g.shape
+    n = len(u)
+    if n == 0:
+        return np.zeros((0, 3), np.float32)
+    cu, cv, cs, ct = u * nu - 0.5, v * nv - 0.5, s * ns - 0.5, t * nt - 0.5
+    lin_uv = mode in ("uv", "quadrilinear", "depth")
+    lin_st = mode in ("st", "quadrilinear", "depth")
+    iu, wu = _axis(cu, nu, lin_uv)
+    iv, wv = _axis(cv, nv, lin_uv)
+    if mode == "depth":
+        D = g.distance
+        zeta = np.full(n, D if slab.focal_depth is None else slab.focal_depth, np.float32)
+        if slab.depth is not None:
+            near = [_axis(c, m, False)[0][:, 0] for c, m in ((cv, nv), (cu, nu), (ct, nt), (cs, ns))]
+            z = np.asarray(slab.depth).reshape(-1).take(((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3])
+            zeta = np.where(z > 1e-6 * D, z, zeta)  # 0 = no surface: keep the focal plane
+        shift = D / zeta - 1.0
+        ks = g.uv_size[0] * ns / (g.st_size[0] * nu)
+        kt = g.uv_size[1] * nt / (g.st_size[1] * nv)
+        is_, ws = _axis(cs[:, None] + (shift * ks)[:, None] * (cu[:, None] - iu), ns, True)  # (N, 2, 2)
+        it, wt = _axis(ct[:, None] + (shift * kt)[:, None] * (cv[:, None] - iv), nt, True)
+    else:
+        is_, ws = _axis(cs, ns, lin_st)
+        it, wt = _axis(ct, nt, lin_st)
+        is_, it = is_[:, None], it[:, None]
+        ws, wt = (None if w is None else w[:, None] for w in (ws, wt))
+    vals = _fetch(slab.radiance, iv, it, iu, is_)
+    w_row, w_col = _pair_weights(wv, wt, n), _pair_weights(wu, ws, n)
+    if w_row is None and w_col is None:
+        return vals[:, 0]
+    if w_row is None:
+        w = w_col
+    elif w_col is None:
+        w = w_row
+    else:
+        w = (w_row[:, :, None] * w_col[:, None, :]).reshape(n, -1)
+    return np.einsum("nk,nkc->nc", w, vals)
 
 
 def lookup(slab: LightSlab, hits_or_coords, mode: str = "quadrilinear") -> np.ndarray:
     """Interpolate a slab at valid ray coordinates.
 
-    hits_or_coords: :class:`SlabHits` (required by ``depth`` mode) restricted to valid rays, or
-    (N, 4) float64 (u, v, s, t) in [0, 1]. Returns (N, 3) float32 radiance.
+    hits_or_coords: :class:`SlabHits` restricted to valid rays, or (N, 4) (u, v, s, t) in [0, 1]
+    (float64 or float32). Returns (N, 3) float32 radiance.
     """
     if mode not in MODES:
         raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
-    g = slab.geometry
-    nu, nv, ns, nt = g.shape
-    hits = hits_or_coords if isinstance(hits_or_coords, SlabHits) else None
-    coords = hits.coords if hits is not None else np.asarray(hits_or_coords, dtype=np.float64).reshape(-1, 4)
-    flat = slab.radiance.reshape(-1, 3)
-    if len(coords) == 0:
-        return np.zeros((0, 3), np.float32)
-    u, v, s, t = coords.T
-    if mode != "depth":
-        lin_uv = mode in ("uv", "quadrilinear")
-        lin_st = mode in ("st", "quadrilinear")
-        return _gather(flat, _taps(v, nv, lin_uv), _taps(u, nu, lin_uv), _taps(t, nt, lin_st), _taps(s, ns, lin_st),
-                       g.shape)
-    if hits is None:
-        raise ValueError("depth mode needs SlabHits (the rays' plane crossings), not bare coordinates")
-    return _lookup_depth(slab, hits)
-
-
-def _lookup_depth(slab: LightSlab, hits: SlabHits) -> np.ndarray:
-    """Depth-corrected lookup: focal point on the eye ray at the focal surface, re-projected
-    from each of the four nearest uv samples onto st (Gortler et al. 1996; Isaksen et al. 2000)."""
-    g = slab.geometry
-    nu, nv, ns, nt = g.shape
-    D = g.distance
-    u, v, s, t = hits.coords.T
-    zeta = np.full(len(u), D if slab.focal_depth is None else float(slab.focal_depth))
-    if slab.depth is not None:
-        near = [_taps(x, n, False)[0][0] for x, n in ((v, nv), (u, nu), (t, nt), (s, ns))]
-        z = np.asarray(slab.depth.reshape(-1)[((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3]], np.float64)
-        zeta = np.where(z > 1e-6 * D, z, zeta)  # 0 = no surface: keep the focal plane
-    # focal point F (uv frame, x y) on the eye ray at depth zeta; the ray crosses z=0 at hits.uv, z=D at hits.st
-    F = hits.uv + (zeta / D)[:, None] * (hits.st - hits.uv)
-    scale = (D / zeta)[:, None]
-    flat = slab.radiance.reshape(-1, 3)
-    out = np.zeros((len(u), 3), np.float32)
-    for (iv, wv), (iu, wu) in itertools.product(_taps(v, nv, True), _taps(u, nu, True)):
-        # this uv sample's ray through F crosses st at P = U + (D / zeta) (F - U)
-        U = np.stack([(iu + 0.5) / nu * g.uv_size[0], (iv + 0.5) / nv * g.uv_size[1]], axis=1)
-        P = U + scale * (F - U)
-        sp = np.clip((P[:, 0] - g.st_offset[0]) / g.st_size[0], 0.0, 1.0)
-        tp = np.clip((P[:, 1] - g.st_offset[1]) / g.st_size[1], 0.0, 1.0)
-        w = _mul(wv, wu)
-        vals = _gather(flat, [(iv, None)], [(iu, None)], _taps(tp, nt, True), _taps(sp, ns, True), g.shape)
-        out += vals if w is None else vals * w[:, None]
-    return out
+    coords = hits_or_coords.coords if isinstance(hits_or_coords, SlabHits) else hits_or_coords
+    coords = np.asarray(coords)
+    if coords.dtype not in (np.float32, np.float64):
+        coords = coords.astype(np.float64)
+    coords = coords.reshape(-1, 4)
+    return _interpolate(slab, *coords.T, mode).astype(np.float32, copy=False)
 
 
 def select_slabs(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarray
@@ -346,10 +421,9 @@ def select_slabs(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarr
     return best, all_hits
 
 
-def _subset(h, sel: np.ndarray) -> SlabHits:
-    if isinstance(h, _LazyHits):
-        return h.subset(sel)
-    return SlabHits(h.uv[sel], h.st[sel], h.coords[sel], h.valid[sel], h.cos[sel])
+def _coords_of(h: SlabHits, sel: np.ndarray) -> list[np.ndarray]:
+    """(u, v, s, t) arrays of the rays ``sel``."""
+    return list(h.coords[sel].T)
 
 
 def render_rays(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarray, mode: str = "quadrilinear",
@@ -360,58 +434,6 @@ def render_rays(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarra
         raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
     o, d = _check_rays(origins, dirs)
     return _render_hits(slabs, [slab_coordinates(s.geometry, o, d) for s in slabs], mode, background)
-
-
-def camera_hits(geom: SlabGeometry, camera: Camera) -> "_LazyHits":
-    """:func:`slab_coordinates` of every pixel-centre ray of an undistorted pinhole ``camera``
-    (row-major, N = H * W), computed in float32 from the two plane homographies: a pinhole's ray
-    through pixel p = (x, y, 1) has direction A p in the slab frame (A = R_slab R_cam K^-1), so
-    each coordinate is a ratio of affine functions of x and y (no per-ray matrix products)."""
-    k = camera.intrinsics
-    if k.has_distortion:
-        o, d = camera.pixel_rays()
-        h = slab_coordinates(geom, o, d)
-        return _LazyHits([h.uv[:, 0], h.uv[:, 1], h.st[:, 0], h.st[:, 1], *h.coords.T], h.valid, h.cos)
-    Kinv = np.linalg.inv(k.K)
-    A = geom.rotation @ camera.cam_to_world[:3, :3] @ Kinv
-    oc = geom.rotation @ (camera.center - geom.uv_corners[0])
-    x = (np.arange(k.width, dtype=np.float32) + np.float32(0.5))[None, :]
-    y = (np.arange(k.height, dtype=np.float32) + np.float32(0.5))[:, None]
-    A32 = A.astype(np.float32)
-    dx, dy, dz = (A32[i, 0] * x + (A32[i, 1] * y + A32[i, 2]) for i in range(3))
-    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-    cos = dz / norm  # norm > 0: K^-1 p has z = 1
-    ok = cos > MIN_COS
-    if not oc[2] < geom.distance:  # the eye is beyond the st plane: every ray misses
-        ok[:] = False
-    dzs = np.where(ok, dz, np.float32(1.0))
-    D = geom.distance
-    f_uv, f_st = np.float32(-oc[2]) / dzs, np.float32(D - oc[2]) / dzs
-    ox, oy = np.float32(oc[0]), np.float32(oc[1])
-    ux, uy = ox + f_uv * dx, oy + f_uv * dy
-    sx, sy = ox + f_st * dx, oy + f_st * dy
-    cu = ux * np.float32(1 / geom.uv_size[0])
-    cv = uy * np.float32(1 / geom.uv_size[1])
-    cs = (sx - np.float32(geom.st_offset[0])) * np.float32(1 / geom.st_size[0])
-    ct = (sy - np.float32(geom.st_offset[1])) * np.float32(1 / geom.st_size[1])
-    for c in (cu, cv, cs, ct):
-        ok &= (c >= 0) & (c <= 1)
-    ok = ok.reshape(-1)
-    return _LazyHits([a.reshape(-1) for a in (ux, uy, sx, sy, cu, cv, cs, ct)], ok, np.where(ok, cos.reshape(-1), 0))
-
-
-class _LazyHits:
-    """SlabHits of a whole image kept as flat components; stacked only for the rays a slab serves."""
-
-    def __init__(self, comps: list[np.ndarray], valid: np.ndarray, cos: np.ndarray):
-        self.comps, self.valid, self.cos = comps, valid, cos
-
-    def subset(self, sel: np.ndarray) -> SlabHits:
-        c = [a[sel] for a in self.comps]
-        return SlabHits(np.stack(c[0:2], 1), np.stack(c[2:4], 1), np.stack(c[4:8], 1), self.valid[sel], self.cos[sel])
-
-    def full(self) -> SlabHits:
-        return self.subset(slice(None))
 
 
 def _render_hits(slabs: Sequence[LightSlab], hits: list[SlabHits], mode: str, background) -> np.ndarray:
@@ -429,43 +451,79 @@ def _render_hits(slabs: Sequence[LightSlab], hits: list[SlabHits], mode: str, ba
     for k, slab in enumerate(slabs):
         sel = np.flatnonzero(best == k)
         if len(sel):
-            out[sel] = lookup(slab, _subset(hits[k], sel), mode)
+            out[sel] = _interpolate(slab, *_coords_of(hits[k], sel), mode)
     return out
 
 
-def _band(camera: Camera, row0: int, row1: int) -> Camera:
-    """The same camera restricted to pixel rows [row0, row1) (principal point shifted)."""
-    k = camera.intrinsics
-    return Camera(Intrinsics(k.width, row1 - row0, k.fx, k.fy, k.cx, k.cy - row0, k.dist), camera.cam_to_world,
-                  camera.name)
+def _kernel_params(slab: LightSlab, pix_to_world: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """(N_PARAMS,) float64 parameters of :mod:`render.slab_kernels` for a slab seen by a pinhole
+    camera with pixel (x, y, 1) -> world direction map ``pix_to_world`` = R_cam K^-1 (3, 3) and
+    centre ``eye`` (3,): the slab-frame direction map A = R_slab R_cam K^-1, the eye in the slab
+    frame, the slab's sizes and its default focal distance."""
+    g = slab.geometry
+    A = g.rotation @ pix_to_world
+    eye = g.rotation @ (eye - g.uv_corners[0])
+    focal = g.distance if slab.focal_depth is None else float(slab.focal_depth)
+    return np.concatenate([A.reshape(-1), eye, [g.distance], g.uv_size, g.st_size, g.st_offset, [focal]])
+
+
+def _kernel_arrays(slab: LightSlab) -> tuple:
+    """(dims, rad, depth, codes, codebook, tdims) of a slab as the kernels take them (views, no copies)."""
+    nu, nv, ns, nt = slab.geometry.shape
+    dims = np.array([nu, nv, ns, nt], np.int64)
+    depth = np.zeros(0, np.float32) if slab.depth is None else np.asarray(slab.depth).reshape(-1)
+    r = slab.radiance
+    if isinstance(r, VQRadiance):
+        return (dims, np.zeros((0, 3), np.float32), depth, r.codes.reshape(-1), r.codebook.reshape(-1, 3),
+                np.array(r.codes.shape, np.int64))
+    return (dims, np.asarray(r).reshape(-1, 3), depth, np.zeros(0, np.uint16), np.zeros((0, 3), np.float32),
+            np.zeros(4, np.int64))
 
 
 def render_view(slabs: Sequence[LightSlab], camera: Camera, mode: str = "quadrilinear",
                 background=(0.0, 0.0, 0.0), threads: int = 2) -> np.ndarray:
     """(H, W, 3) float32 linear image of ``camera`` rendered from a slab set (every pixel centre);
     each pixel's ray is looked up in the slab it crosses most steeply, else gets ``background``.
-    ``threads`` bands of rows are rendered concurrently (NumPy releases the GIL in its kernels)."""
+
+    Pinhole cameras render through the compiled kernels of :mod:`render.slab_kernels` in
+    ``threads`` bands of rows at once (the kernels release the GIL); cameras with lens distortion
+    take the general per-ray path (:func:`render_rays`)."""
     if mode not in MODES:
         raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
+    bg = np.asarray(background, dtype=np.float32).reshape(-1)
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValueError(f"background must be three finite numbers, got {background!r}")
     k = camera.intrinsics
-    if k.has_distortion:
-        threads = 1  # distorted rays are computed for the whole image
+    if k.has_distortion or not slabs:
+        return render_rays(slabs, *camera.pixel_rays(), mode=mode, background=bg).reshape(k.height, k.width, 3)
+    from . import slab_kernels as sk
+
+    pix_to_world = camera.cam_to_world[:3, :3] @ np.linalg.inv(k.K)
+    params = np.stack([_kernel_params(s, pix_to_world, camera.center) for s in slabs])
+    arrays = [_kernel_arrays(s) for s in slabs]
+    out = np.empty((k.height * k.width, 3), np.float32)
+    out[:] = bg
+    mode_id = sk.MODE_IDS[mode]
+
+    def band(rows: tuple[int, int]) -> None:
+        r0, r1 = rows
+        best = np.empty((r1 - r0) * k.width, np.int64)
+        sk.select_band(params, r0, r1, k.width, best)
+        part = out[r0 * k.width:r1 * k.width]
+        for i, arr in enumerate(arrays):
+            sk.interpolate_band(params, *arr[:6], mode_id, best, i, r0, r1, k.width, part)
+
     threads = max(1, min(int(threads), k.height))
-
-    def band(rows: tuple[int, int]) -> np.ndarray:
-        cam = camera if rows == (0, k.height) else _band(camera, *rows)
-        hits = [camera_hits(s.geometry, cam) for s in slabs]
-        return _render_hits(slabs, hits, mode, background)
-
     edges = np.linspace(0, k.height, threads + 1).astype(int)
     bands = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
     if threads == 1:
-        return band(bands[0]).reshape(k.height, k.width, 3)
-    from concurrent.futures import ThreadPoolExecutor
+        band(bands[0])
+    else:
+        from concurrent.futures import ThreadPoolExecutor
 
-    with ThreadPoolExecutor(threads) as pool:
-        parts = list(pool.map(band, bands))
-    return np.concatenate(parts).reshape(k.height, k.width, 3)
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(band, bands))
+    return out.reshape(k.height, k.width, 3)
 
 
 def sheared_camera(geom: SlabGeometry, u: float, v: float, st_supersample: int = 1, name: str | None = None) -> Camera:

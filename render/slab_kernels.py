@@ -1,0 +1,168 @@
+"""Compiled (numba) slab rendering of a pinhole camera: one pass over the pixels per slab.
+
+:func:`render.slab.render_view` hands each band of image rows to two kernels: :func:`select_band`
+intersects every pixel-centre ray with every slab and keeps the slab it crosses most steeply
+(the largest cosine with the slab's ``forward``; -1 where no slab is crossed), then
+:func:`interpolate_band`, once per slab, re-intersects that slab's pixels and interpolates its
+samples (plain float32 arrays, or vector-quantized tiles through the codebook). Nothing is
+stored per ray between the two, and the kernels release the GIL, so two bands render on two
+cores at once.
+
+The math is that of the numpy reference in :mod:`render.slab` (:func:`render.slab.slab_coordinates`
+and the interpolation of :func:`render.slab.lookup`), which stays the public path for arbitrary
+rays; ``tests/render/test_slab.py`` checks the two against each other. Precision: float64
+throughout (the numpy path's float64 answers are matched to rounding).
+
+Per-slab parameters, one float64 row (:data:`N_PARAMS`), built by :func:`render.slab._kernel_params`:
+``A`` (9, row-major 3x3 = R_slab R_cam K^-1: pixel (x, y, 1) -> ray direction in the slab frame
+(e_s, e_t, forward)), the eye in that frame relative to uv corner 0 (3), the uv -> st distance D,
+the uv size (2), the st size (2), the st offset (2) and the depth mode's default focal distance.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["N_PARAMS", "MODE_IDS", "select_band", "interpolate_band"]
+
+N_PARAMS = 20
+MODE_IDS = {"nearest": 0, "uv": 1, "st": 2, "quadrilinear": 3, "depth": 4}
+_MIN_COS = 1e-6  # render.slab.MIN_COS
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
+
+
+@njit(inline="always", **_JIT)
+def _crossing(p, k, x, y):
+    """(ok, cos, u, v, s, t) of the ray through image point (x, y) for slab ``k`` of the
+    parameter rows ``p`` (S, N_PARAMS) (indexed in place: no row views in the pixel loops)."""
+    dx = p[k, 0] * x + p[k, 1] * y + p[k, 2]
+    dy = p[k, 3] * x + p[k, 4] * y + p[k, 5]
+    dz = p[k, 6] * x + p[k, 7] * y + p[k, 8]
+    norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not norm > 0.0:
+        return False, 0.0, 0.5, 0.5, 0.5, 0.5
+    cos = dz / norm
+    if not (cos > _MIN_COS and p[k, 11] < p[k, 12]):  # parallel or backwards, or the eye beyond st
+        return False, 0.0, 0.5, 0.5, 0.5, 0.5
+    f_uv = -p[k, 11] / dz
+    f_st = (p[k, 12] - p[k, 11]) / dz
+    u = (p[k, 9] + f_uv * dx) / p[k, 13]
+    v = (p[k, 10] + f_uv * dy) / p[k, 14]
+    s = (p[k, 9] - p[k, 17] + f_st * dx) / p[k, 15]
+    t = (p[k, 10] - p[k, 18] + f_st * dy) / p[k, 16]
+    ok = 0.0 <= u <= 1.0 and 0.0 <= v <= 1.0 and 0.0 <= s <= 1.0 and 0.0 <= t <= 1.0
+    return ok, cos, u, v, s, t
+
+
+@njit(**_JIT)
+def select_band(params, row0, row1, width, best):
+    """For pixel rows [row0, row1) of a ``width``-wide image, the index of the slab each pixel's
+    ray crosses most steeply into ``best`` ((row1 - row0) * width,) int64, -1 for none.
+    params: (S, N_PARAMS) float64."""
+    n_slabs = params.shape[0]
+    for i in range(row0, row1):
+        y = i + 0.5
+        for j in range(width):
+            x = j + 0.5
+            k_best = -1
+            c_best = 0.0
+            for k in range(n_slabs):
+                ok, cos, u, v, s, t = _crossing(params, k, x, y)
+                if ok and cos > c_best:
+                    k_best = k
+                    c_best = cos
+            best[(i - row0) * width + j] = k_best
+
+
+@njit(inline="always", **_JIT)
+def _taps(c, n, linear):
+    """(i0, w0, i1, w1, count) along one axis of n samples at sample coordinate c, edge-clamped."""
+    if c < 0.0:
+        c = 0.0
+    if c > n - 1.0:
+        c = n - 1.0
+    if not linear or n == 1:
+        return int(math.floor(c + 0.5)), 1.0, 0, 0.0, 1
+    f0 = min(math.floor(c), n - 2.0)
+    i0 = int(f0)
+    f = c - f0
+    return i0, 1.0 - f, i0 + 1, f, 2
+
+
+@njit(inline="always", **_JIT)
+def _row(codes, vq, dims, tdims, iv, iu, it, is_):
+    """Row of the (M, 3) sample table holding ray (iv, iu, it, is_): of the radiance array, or
+    of the codebook through the ray's tile's codeword (vector-quantized slabs)."""
+    if not vq:
+        return ((iv * dims[0] + iu) * dims[3] + it) * dims[2] + is_
+    tile = (((iv >> 1) * tdims[1] + (iu >> 1)) * tdims[2] + (it >> 1)) * tdims[3] + (is_ >> 1)
+    return np.int64(codes[tile]) * 16 + (iv & 1) * 8 + (iu & 1) * 4 + (it & 1) * 2 + (is_ & 1)
+
+
+@njit(**_JIT)
+def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, mode, best, k, row0, row1, width, out):
+    """Radiance of the pixels of rows [row0, row1) whose ``best`` slab is ``k`` into ``out``
+    ((row1 - row0) * width, 3) float32, interpolated in ``mode`` (:data:`MODE_IDS`).
+
+    params: (S, N_PARAMS) float64 (row k is this slab's); dims: (4,) int64 (Nu, Nv, Ns, Nt). Samples: ``rad``
+    (Nv Nu Nt Ns, 3) float32 when ``codes`` is empty, else vector-quantized: ``codes``
+    (Tv Tu Tt Ts,) codewords, ``codebook`` (K 16, 3) float32 with tile dims ``tdims`` (4,) int64
+    (Tv, Tu, Tt, Ts). depth: (Nv Nu Nt Ns,) float32 or empty (no depth)."""
+    nu, nv, ns, nt = dims[0], dims[1], dims[2], dims[3]
+    vq = codes.shape[0] > 0
+    table = codebook if vq else rad
+    has_depth = depth.shape[0] > 0
+    D = params[k, 12]
+    ks = params[k, 13] * ns / (params[k, 15] * nu)
+    kt = params[k, 14] * nt / (params[k, 16] * nv)
+    lin_uv = mode == 1 or mode >= 3
+    lin_st = mode >= 2
+    for i in range(row0, row1):
+        y = i + 0.5
+        for j in range(width):
+            q = (i - row0) * width + j
+            if best[q] != k:
+                continue
+            ok, cos, u, v, s, t = _crossing(params, k, j + 0.5, y)
+            cu, cv, cs, ct = u * nu - 0.5, v * nv - 0.5, s * ns - 0.5, t * nt - 0.5
+            shift = 0.0
+            if mode == 4:
+                zeta = params[k, 19]
+                if has_depth:
+                    jv, _, _, _, _ = _taps(cv, nv, False)
+                    ju, _, _, _, _ = _taps(cu, nu, False)
+                    jt, _, _, _, _ = _taps(ct, nt, False)
+                    js, _, _, _, _ = _taps(cs, ns, False)
+                    z = depth[((jv * nu + ju) * nt + jt) * ns + js]
+                    if z > 1e-6 * D:
+                        zeta = z
+                shift = D / zeta - 1.0
+            v0, wv0, v1, wv1, nvt = _taps(cv, nv, lin_uv)
+            u0, wu0, u1, wu1, nut = _taps(cu, nu, lin_uv)
+            r = 0.0
+            g = 0.0
+            b = 0.0
+            for a in range(nvt):
+                iv = v0 if a == 0 else v1
+                wv = wv0 if a == 0 else wv1
+                t0, wt0, t1, wt1, ntt = _taps(ct + shift * kt * (cv - iv), nt, lin_st)
+                for bb in range(nut):
+                    iu = u0 if bb == 0 else u1
+                    wu = wu0 if bb == 0 else wu1
+                    s0, ws0, s1, ws1, nst = _taps(cs + shift * ks * (cu - iu), ns, lin_st)
+                    for c_ in range(ntt):
+                        it = t0 if c_ == 0 else t1
+                        wt = wt0 if c_ == 0 else wt1
+                        for d_ in range(nst):
+                            is_ = s0 if d_ == 0 else s1
+                            w = wv * wu * wt * (ws0 if d_ == 0 else ws1)
+                            m = _row(codes, vq, dims, tdims, iv, iu, it, is_)
+                            r += w * table[m, 0]
+                            g += w * table[m, 1]
+                            b += w * table[m, 2]
+            out[q, 0] = r
+            out[q, 1] = g
+            out[q, 2] = b
