@@ -220,6 +220,30 @@ class Accel:
             v[miss] = 0.0
         return Hits(t, tri, u, v)
 
+    @property
+    def ids(self) -> np.ndarray:
+        """(P,) int64 global triangle index of each Embree primID of this BVH."""
+        return self._ids
+
+    def intersect_raw(self, o32: np.ndarray, d32: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Embree's own first-hit output for (N, 3) C-contiguous float32 origins and unit dirs,
+        on the calling thread (what the wavefront kernels read): (primID (N,) int32, -1 on a
+        miss, index into :attr:`ids`; tfar (N,) float32; u, v (N,) float32 barycentrics)."""
+        n = len(o32)
+        if self._scene is None or n == 0:
+            z = np.zeros(n, np.float32)
+            return np.full(n, -1, np.int32), np.full(n, np.inf, np.float32), z, z
+        out = self._scene.run(o32, d32, dists=None, output=True)
+        return out["primID"], out["tfar"], out["u"], out["v"]
+
+    def occluded_raw(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
+        """Embree's occlusion output for float32 rays (N, 3) and tmax (N,), on the calling
+        thread: (N,) int32, -1 where nothing lies on the ray at t in (0, tmax)."""
+        n = len(o32)
+        if self._scene is None or n == 0:
+            return np.full(n, -1, np.int32)
+        return self._scene.run(o32, d32, dists=t32, query="OCCLUDED")
+
     def occluded(self, origins: np.ndarray, dirs: np.ndarray, tmax, threads: int | None = None) -> np.ndarray:
         """(N,) bool: does anything lie on the ray at t in (0, tmax)? tmax (N,) or scalar."""
         n = len(origins)

@@ -52,14 +52,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .accel import Accel, Geometry, offset_eps, spawn_origin
-from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, MaterialTable, bsdf_sample
+from .accel import Accel, Geometry
+from .bsdf import MaterialTable
 from .camera import Camera
 from .effects import scene_effects
 from .film import Film, RenderResult, merge_results
 from .lights import LightSet
-from .sampling import (INV_PI, cosine_hemisphere, mis_weight, orthonormal_frame, path_keys, to_local, to_world,
-                       uniform_block, dot3, max3)
+from .pt_kernels import (F_DELTA, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, accumulate, add_unoccluded,
+                         camera_rays, kernel_scene, last_bounce_queue, shade_bounce)
+from .sampling import _GOLDEN, _mix64
 from .scene import DirectionalLight, PointLight, Scene, SpotLight
 
 __all__ = [
@@ -142,6 +143,7 @@ class PreparedScene:
 
     emit_accel: a BVH over the emissive triangles alone: `direct` finds what its last BSDF ray
     could hit there first, and asks the full BVH only an occlusion query up to that emitter.
+    kernel: the same scene packed as flat arrays for the compiled kernels (built on first use).
     """
 
     geom: Geometry
@@ -151,6 +153,7 @@ class PreparedScene:
     background: np.ndarray
     has_delta_lights: bool
     emit_accel: Accel | None = None
+    kernel: KernelScene | None = None
 
 
 def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
@@ -165,229 +168,100 @@ def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
     return PreparedScene(geom, accel, mats, lights, np.asarray(scene.background, np.float64), delta, emit_accel)
 
 
-def _last_bounce(ps: PreparedScene, st: RenderSettings, heur, o: np.ndarray, d: np.ndarray,
-                 beta: np.ndarray, pdf: np.ndarray) -> tuple[np.ndarray, int]:
-    """Radiance a `direct` path's final BSDF ray brings back, without a full intersection.
-
-    o, d: (K, 3) ray origins and directions leaving the diffuse vertex; beta: (K, 3) throughput
-    including the BSDF weight; pdf: (K,) the BSDF sample's density. An emitter hit found in the
-    emitter-only BVH counts (MIS-weighted against NEE) unless the full BVH has an occluder
-    before it; an escaping ray brings the background. Returns ((K, 3) radiance, ray queries).
-    """
-    k = len(o)
-    out = np.zeros((k, 3))
-    g, mats, lights = ps.geom, ps.mats, ps.lights
-    nrays = 0
-    hit_tri = np.full(k, -1, np.int64)
-    t_hit = np.full(k, np.inf)
-    if ps.emit_accel is not None and st.strategy != "light":
-        h = ps.emit_accel.intersect(o, d, threads=1)
-        nrays += k
-        hit_tri, t_hit = h.tri, h.t
-        e = np.nonzero(hit_tri >= 0)[0]
-        if len(e):
-            occ = ps.accel.occluded(o[e], d[e], t_hit[e] * (1.0 - 1e-6), threads=1)
-            nrays += len(e)
-            e = e[~occ]
-            tri = hit_tri[e]
-            obj = g.obj[tri]
-            cos_hit = -dot3(d[e], g.normal[tri])
-            front = mats.two_sided[obj] | (cos_hit > 0)
-            e, tri, obj, cos_hit = e[front], tri[front], obj[front], cos_hit[front]
-            w = np.ones(len(e))
-            if st.strategy == "mis" and lights.has_area:
-                w = heur(pdf[e], lights.pdf_hit(tri, t_hit[e], cos_hit))
-            out[e] = beta[e] * mats.Le[obj] * w[:, None]
-    if ps.background.max() > 0:
-        m = np.nonzero(hit_tri < 0)[0]
-        if len(m):
-            occ = ps.accel.occluded(o[m], d[m], np.inf, threads=1)
-            nrays += len(m)
-            m = m[~occ]
-            out[m] += beta[m] * ps.background
-    return out, nrays
+def _kernel_scene(ps: PreparedScene) -> KernelScene:
+    if ps.kernel is None:
+        emit_ids = ps.emit_accel.ids if ps.emit_accel is not None else np.zeros(0, np.int64)
+        ps.kernel = kernel_scene(ps.geom, ps.mats, ps.lights, ps.accel.ids, emit_ids, ps.background)
+    return ps.kernel
 
 
-def _heuristic(settings: RenderSettings):
-    beta = 2.0 if settings.heuristic == "power" else 1.0
-    return lambda pf, pg: mis_weight(pf, pg, beta)
-
-
-def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, caustics: bool,
-           pix: np.ndarray, sidx: np.ndarray) -> tuple[np.ndarray, int]:
-    """Trace one camera sample per (pixel, sample index) pair. Returns ((N, 3) radiance, rays).
-
-    Wavefront state per live path: idx (into the output), beta (throughput), keys (RNG), the
-    ray d, prev_pdf / prev_delta (how the ray was sampled, for MIS), after_diff (a diffuse
-    vertex lies behind: the path can no longer be a camera-side specular chain).
-    """
-    g, mats, lights, accel = ps.geom, ps.mats, ps.lights, ps.accel
-    heur = _heuristic(st)
-    n = len(pix)
-    width = cam.intrinsics.width
-    keys = path_keys(st.seed, pix, sidx)
-    jit = uniform_block(keys, 0, 2)
-    jit[:, 0] += pix % width
-    jit[:, 1] += pix // width
-    o, d = cam.pixel_rays(jit)
-    L = np.zeros((n, 3))
-    idx = np.arange(n)
-    beta = np.ones((n, 3))
-    prev_pdf = np.zeros(n)
-    prev_delta = np.ones(n, bool)  # the camera ray counts as specular: emission seen directly has weight 1
-    after_diff = np.zeros(n, bool)
-    bg = ps.background
-    has_bg = bool(bg.max() > 0)
+def _config(ps: PreparedScene, st: RenderSettings, integ: str, caustics: bool) -> np.ndarray:
+    """The (16,) float64 settings vector of :func:`render.pt_kernels.shade_bounce`."""
+    lights = ps.lights
+    has_bg = bool(ps.background.max() > 0)
     direct = integ == "direct"
     nee_area = st.strategy != "bsdf" and lights.has_area
-    nee_any = nee_area or lights.has_delta
-    mis_on_hits = lights.has_area and st.strategy != "bsdf"
-    continue_diffuse = not (direct and st.strategy == "light" and not has_bg)
-    has_specular = bool(np.any((mats.kind == MIRROR) | (mats.kind == DIELECTRIC)))
-    extent = g.extent
+    cfg = np.zeros(16)
+    cfg[:13] = [st.max_depth, direct, caustics, {"mis": STRAT_MIS, "light": STRAT_LIGHT, "bsdf": STRAT_BSDF}[st.strategy],
+                2.0 if st.heuristic == "power" else 1.0, integ == "path" and st.roulette, st.rr_depth, has_bg,
+                nee_area, nee_area or lights.has_delta, lights.has_area and st.strategy != "bsdf",
+                not (direct and st.strategy == "light" and not has_bg), lights.has_area]
+    return cfg
+
+
+def _camera_vector(cam: Camera) -> np.ndarray:
+    """(16,) float64 [fx, fy, cx, cy, R row-major (9), t (3)] of a camera-to-world pinhole."""
+    k = cam.intrinsics
+    c2w = np.asarray(cam.cam_to_world, dtype=np.float64)
+    return np.concatenate([[k.fx, k.fy, k.cx, k.cy], c2w[:3, :3].ravel(), c2w[:3, 3]])
+
+
+def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, cfg: np.ndarray,
+           start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
+    + pixel). Returns ((N,) int64 pixels, (N, 3) float64 radiance, rays traced).
+
+    Wavefront: each bounce is one Embree call for all live paths, one compiled shading pass
+    (:func:`render.pt_kernels.shade_bounce`) that also writes the next rays and the shadow
+    rays, then one occlusion call for every shadow ray of the bounce (next-event estimation
+    and, for `direct`, the last BSDF rays).
+    """
+    ks = _kernel_scene(ps)
+    accel = ps.accel
+    k = cam.intrinsics
+    n = stop - start
+    npix = k.width * k.height
+    keys = np.empty(n, np.uint64)
+    pix = np.empty(n, np.int64)
+    o32 = np.empty((n, 3), np.float32)
+    d32 = np.empty((n, 3), np.float32)
+    dd = np.empty((n, 3))
+    jit = np.empty((n, 2))
+    seed_mix = _mix64(np.array([np.uint64(st.seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
+    pinhole = not k.has_distortion
+    camera_rays(start, stop, npix, k.width, sample0, seed_mix, _camera_vector(cam), pinhole, keys, pix, o32, d32, dd, jit)
+    if not pinhole:
+        o, dd = cam.pixel_rays(jit)
+        o32, d32 = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(dd, np.float32)
+    L = np.zeros((n, 3))
+    idx = np.arange(n, dtype=np.int64)
+    beta = np.ones((n, 3))
+    pdf = np.zeros(n)
+    flags = np.full(n, F_DELTA, np.uint8)  # the camera ray counts as specular: emission seen directly has weight 1
+    direct = integ == "direct"
+    query_emitters = direct and ps.emit_accel is not None and st.strategy != "light"
+    no_hits = (np.zeros(0, np.int32), np.zeros(0, np.float32))
     nrays = 0
     for depth in range(st.max_depth + 1):
-        if len(idx) == 0:
+        m = len(idx)
+        if m == 0:
             break
-        h = accel.intersect(o, d, threads=1)
-        nrays += len(idx)
-        tri = h.tri
-        hit = tri >= 0
-        all_hit = bool(hit.all())
-        if not all_hit and has_bg:
-            m = np.nonzero(~hit)[0]
-            w = np.ones(len(m))
-            if not caustics:
-                w[prev_delta[m] & after_diff[m]] = 0.0
-            L[idx[m]] += beta[m] * bg * w[:, None]
-        obj = g.obj[tri]  # tri = -1 on misses gives a valid, masked-out index
-        kind = mats.kind[obj]
-        # ---- emission found by the ray (camera, specular chain, or BSDF sample)
-        em = mats.emits[obj] & hit
-        if em.any():
-            e = np.nonzero(em)[0]
-            cos_hit = -np.einsum("ij,ij->i", d[e], g.normal[tri[e]])
-            front = mats.two_sided[obj[e]] | (cos_hit > 0)
-            e, cos_hit = e[front], cos_hit[front]
-            if len(e):
-                w = np.ones(len(e))
-                nd = np.nonzero(~prev_delta[e])[0]
-                if len(nd) and st.strategy == "light" and lights.has_area:
-                    w[nd] = 0.0
-                elif len(nd) and mis_on_hits:
-                    en = e[nd]
-                    w[nd] = heur(prev_pdf[en], lights.pdf_hit(tri[en], h.t[en], cos_hit[nd]))
-                if not caustics:
-                    w[prev_delta[e] & after_diff[e]] = 0.0
-                L[idx[e]] += beta[e] * mats.Le[obj[e]] * w[:, None]
-        if depth == st.max_depth:
-            break
-        alive = hit & (kind != EMISSIVE)
-        if direct:
-            alive &= ~after_diff
-        if not alive.all():
-            s = np.nonzero(alive)[0]
-            idx, beta, after_diff, keys, d, tri, obj, kind = (
-                a[s] for a in (idx, beta, after_diff, keys, d, tri, obj, kind))
-            hu, hv = h.u[s], h.v[s]
-        else:
-            hu, hv = h.u, h.v
-        m_live = len(idx)
-        if m_live == 0:
-            break
-        p, ng = g.point_normal(tri, hu, hv)
-        cos_o = -dot3(d, ng)
-        # shading normal: facing wo for two-sided materials, outward for dielectrics
-        flip = cos_o < 0
-        if has_specular:
-            flip &= kind != DIELECTRIC
-        nrm = np.where(flip[:, None], -ng, ng)
-        rnd = uniform_block(keys, 2 + _DIMS_PER_BOUNCE * depth, 7)
-        diff = np.nonzero(kind == LAMBERT)[0]
-        all_diff = len(diff) == m_live
-        wi = np.zeros((m_live, 3))
-        weight = np.zeros((m_live, 3))
-        pdf = np.zeros(m_live)
-        delta = np.zeros(m_live, bool)
-        valid = np.zeros(m_live, bool)
-        if len(diff):
-            sub = slice(None) if all_diff else diff
-            td, ud, vd = tri[sub], hu[sub], hv[sub]
-            alb = mats.diffuse_albedo(obj[sub], lambda m: g.texcoords(td[m], ud[m], vd[m]))
-            n_d = nrm[sub]
-            beta_d = beta[sub]
-            # ---- next-event estimation at diffuse vertices
-            if nee_any:
-                ls = lights.sample(p[sub], rnd[sub, 0], rnd[sub, 1:3])
-                cos_i = dot3(ls.wi, n_d)
-                ok = ls.valid & (cos_i > 0)
-                if not nee_area:
-                    ok &= ls.delta
-                k = np.nonzero(ok)[0]
-                if len(k):
-                    w = np.ones(len(k))
-                    if st.strategy == "mis":
-                        area = ~ls.delta[k]
-                        w[area] = heur(ls.pdf[k][area], cos_i[k][area] * INV_PI)
-                    pk = p[diff[k]]
-                    wk = ls.wi[k]
-                    origin = spawn_origin(pk, ng[diff[k]], wk, extent)
-                    tmax = np.maximum(ls.dist[k] * (1.0 - 1e-4) - 2.0 * offset_eps(pk, extent), 0.0)
-                    occ = accel.occluded(origin, wk, tmax, threads=1)
-                    nrays += len(k)
-                    vis = np.nonzero(~occ)[0]
-                    kv = k[vis]
-                    scale = INV_PI * cos_i[kv] * w[vis] / ls.pdf[kv]
-                    L[idx[diff[kv]]] += beta_d[kv] * alb[kv] * ls.Li[kv] * scale[:, None]
-            # ---- cosine-weighted BSDF sample, built in world space
-            if continue_diffuse:
-                loc = cosine_hemisphere(rnd[sub, 4:6])
-                s_ax, t_ax = orthonormal_frame(n_d)
-                wi[sub] = to_world(loc, s_ax, t_ax, n_d)
-                weight[sub] = alb
-                pdf[sub] = loc[:, 2] * INV_PI
-                valid[sub] = (loc[:, 2] > 0) & (cos_o[sub] != 0)
-                if direct:  # the path ends here: gather what the last BSDF ray brings back
-                    ok = np.nonzero(valid[sub] & (max3(alb) > 0))[0]
-                    dk = diff[ok]
-                    wk = wi[dk]
-                    Lk, nr = _last_bounce(ps, st, heur, spawn_origin(p[dk], ng[dk], wk, extent), wk,
-                                          beta[dk] * alb[ok], pdf[dk])
-                    L[idx[dk]] += Lk
-                    nrays += nr
-                    valid[sub] = False
-        if has_specular and not all_diff:
-            spec = np.nonzero(kind != LAMBERT)[0]
-            n_s = nrm[spec]
-            s_ax, t_ax = orthonormal_frame(n_s)
-            wo_l = to_local(-d[spec], s_ax, t_ax, n_s)
-            os_ = obj[spec]
-            bs = bsdf_sample(kind[spec], mats.albedo[os_], mats.ior[os_], wo_l, rnd[spec, 3], rnd[spec, 4:6])
-            weight[spec], pdf[spec], delta[spec], valid[spec] = bs.weight, bs.pdf, bs.delta, bs.valid
-            bs_wi = bs.wi
-            wi[spec] = to_world(bs_wi, s_ax, t_ax, n_s)
-        beta = beta * weight
-        if integ == "path" and st.roulette and depth >= st.rr_depth:
-            survive = np.minimum(1.0, max3(beta))
-            live = rnd[:, 6] < survive
-            beta[live] /= survive[live][:, None]
-            valid &= live
-        valid &= max3(beta) > 0
-        if not valid.all():
-            s = np.nonzero(valid)[0]
-            idx, beta, keys, kind, after_diff = idx[s], beta[s], keys[s], kind[s], after_diff[s]
-            prev_pdf, prev_delta, d, p, ng = pdf[s], delta[s], wi[s], p[s], ng[s]
-        else:
-            prev_pdf, prev_delta, d = pdf, delta, wi
-        after_diff = after_diff | (kind == LAMBERT)
-        o = spawn_origin(p, ng, d, extent)
-    return L, nrays
-
-
-def _moments(pix: np.ndarray, values: np.ndarray, npix: int):
-    s1 = np.stack([np.bincount(pix, weights=values[:, c], minlength=npix) for c in range(3)], axis=1)
-    s2 = np.stack([np.bincount(pix, weights=values[:, c] * values[:, c], minlength=npix) for c in range(3)], axis=1)
-    return s1, s2, np.bincount(pix, minlength=npix)
+        prim, tfar, hu, hv = accel.intersect_raw(o32, d32)
+        nrays += m
+        nxt = (np.empty(m, np.int64), np.empty(m, np.uint64), np.empty((m, 3)), np.empty((m, 3)), np.empty(m),
+               np.empty(m, np.uint8), np.empty((m, 3), np.float32), np.empty((m, 3), np.float32))
+        qcap = 2 * m if direct else m
+        q = (np.empty((qcap, 3), np.float32), np.empty((qcap, 3), np.float32), np.empty(qcap, np.float32),
+             np.empty(qcap, np.int64), np.empty((qcap, 3)))
+        lcap = m if direct else 0
+        last = (np.empty((lcap, 3), np.float32), np.empty((lcap, 3), np.float32), np.empty((lcap, 3)),
+                np.empty((lcap, 3)), np.empty(lcap), np.empty(lcap, np.int64))
+        nn, nq, nl = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, flags, L,
+                                  *nxt, *q, *last)
+        if nl:
+            l_o32, l_d32 = last[0][:nl], last[1][:nl]
+            ehits = no_hits
+            if query_emitters:
+                ehits = ps.emit_accel.intersect_raw(l_o32, l_d32)[:2]
+                nrays += nl
+            nq = last_bounce_queue(ks, cfg, nl, ehits[0], ehits[1], last[2], last[3], last[4], last[5],
+                                   l_o32, l_d32, nq, *q)
+        if nq:
+            occ = accel.occluded_raw(q[0][:nq], q[1][:nq], q[2][:nq])
+            nrays += nq
+            add_unoccluded(L, q[3], q[4], occ)
+        idx, keys, beta, dd, pdf, flags, o32, d32 = (a[:nn] for a in nxt)
+    return pix, L, nrays
 
 
 def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettings(),
@@ -415,31 +289,25 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     npix = k.width * k.height
     total = npix * (b - a)
     chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
+    cfg = _config(ps, settings, integ, caustics)
+    _kernel_scene(ps)
 
     def work(chunk):
-        flat = np.arange(chunk[0], chunk[1], dtype=np.int64)
-        pix = flat % npix
-        sidx = a + flat // npix
-        L, nr = _trace(ps, camera, settings, integ, caustics, pix, sidx)
-        return (*_moments(pix, L, npix), nr)
+        return _trace(ps, camera, settings, integ, cfg, chunk[0], chunk[1], a)
 
     film = Film(k.width, k.height)
     rays = 0
-    if settings.threads > 1 and len(chunks) > 1:
-        with ThreadPoolExecutor(settings.threads) as ex:
-            results = ex.map(work, chunks)
-            for ch, (s1, s2, cnt, nr) in zip(chunks, results):
-                film.add_moments(s1, s2, cnt)
-                rays += nr
-                if progress is not None:
-                    progress(ch[1], total)
-    else:
-        for ch in chunks:
-            s1, s2, cnt, nr = work(ch)
-            film.add_moments(s1, s2, cnt)
+    pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
+    try:
+        results = pool.map(work, chunks) if pool is not None else map(work, chunks)
+        for ch, (pix, L, nr) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
+            accumulate(film.s1, film.s2, film.n, pix, L)
             rays += nr
             if progress is not None:
                 progress(ch[1], total)
+    finally:
+        if pool is not None:
+            pool.shutdown()
     stats = {"time_s": time.perf_counter() - t0, "paths": int(total), "rays": int(rays)}
     return RenderResult.from_film(film, (a, b), integ, stats)
 

@@ -1,0 +1,580 @@
+"""Compiled (numba) wavefront kernels of the path tracer: one pass over the live paths per bounce.
+
+:mod:`render.pathtracer` drives the wavefront: Embree (through :class:`render.accel.Accel`)
+finds hits for a whole batch, then one kernel here shades every hit in a single loop (emission,
+next-event estimation, BSDF sampling, Russian roulette, compaction of the survivors) and writes
+the next rays and the shadow rays straight into the float32 arrays Embree reads. Loops over
+rays run inside compiled code and release the GIL, so two render threads overlap (one traces
+while the other shades).
+
+The math is the same as the numpy reference implementations, which stay the public, tested
+interfaces for other integrators: warps and the hash RNG of :mod:`render.sampling`, the BSDFs of
+:mod:`render.bsdf`, light sampling of :mod:`render.lights`, texture lookup of
+:mod:`render.texture`. tests/render/test_pt_kernels.py checks each compiled piece against them.
+
+Precision: shading is float64 (as the numpy code); ray origins, directions and tmax are
+rounded to float32 once, where Embree consumes them (it intersects in float32), and hit
+distances and barycentrics come back as float32. Offsets (:func:`render.accel.spawn_origin`)
+are computed in float64 before the rounding, as before; their bound (1e-6 |p|, ~16 ulps of
+float32) covers the rounding.
+
+Every kernel is a pure function of its inputs, processes rays in index order and compacts
+survivors in that order: results do not depend on threads or batch boundaries.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+__all__ = ["KernelScene", "kernel_scene", "camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
+           "accumulate", "uniform_dims"]
+
+LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
+POINT, SPOT, DIRECTIONAL = 0, 1, 2
+STRAT_MIS, STRAT_LIGHT, STRAT_BSDF = 0, 1, 2
+F_DELTA, F_AFTER_DIFF = np.uint8(1), np.uint8(2)  # per-path flags: previous vertex delta, a diffuse vertex behind
+
+_INV_PI = 1.0 / math.pi
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_INV_2_53 = 1.0 / 9007199254740992.0
+_COS_FLOOR = 1e-12
+_OFFSET_REL = 1e-6  # render.accel.OFFSET_REL
+_TMAX_CAP = 3e38  # largest tmax handed to Embree (float32)
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
+
+
+class KernelScene(NamedTuple):
+    """A prepared scene as flat arrays for the kernels (built once by :func:`kernel_scene`).
+
+    tri: (T, 12) float64 rows [v0, e1, e2, unit normal]; tri_obj: (T,) int64; uv: (T, 3, 2)
+    float64. Per object (M): kind (int64), albedo (M, 3), ior, Le (M, 3), emits, two_sided
+    (bool), tex (M, 3) int64 [offset into tex_data, height, width] (height 0: untextured),
+    tex_data flat float32 linear RGB. Lights: cdf (K,), pmf (K,), area rows (n_area, 17)
+    [v0, e1, e2, normal, pdf_area, Le, two_sided], tri_pdf_area (T,), delta lights d_kind (D,),
+    d_pos, d_dir, d_I (D, 3), d_cos (D, 2). ids / emit_ids: Embree primID -> global triangle
+    of the full and emitter-only BVHs. bg: (3,) background radiance. scal: (2,) float64
+    [extent, light distance floor^2, number of area entries].
+    """
+
+    tri: np.ndarray
+    tri_obj: np.ndarray
+    uv: np.ndarray
+    kind: np.ndarray
+    albedo: np.ndarray
+    ior: np.ndarray
+    Le: np.ndarray
+    emits: np.ndarray
+    two_sided: np.ndarray
+    tex: np.ndarray
+    tex_data: np.ndarray
+    cdf: np.ndarray
+    pmf: np.ndarray
+    area: np.ndarray
+    tri_pdf_area: np.ndarray
+    d_kind: np.ndarray
+    d_pos: np.ndarray
+    d_dir: np.ndarray
+    d_I: np.ndarray
+    d_cos: np.ndarray
+    ids: np.ndarray
+    emit_ids: np.ndarray
+    bg: np.ndarray
+    scal: np.ndarray
+
+
+def kernel_scene(geom, mats, lights, ids: np.ndarray, emit_ids: np.ndarray, background: np.ndarray) -> KernelScene:
+    """Pack a scene's :class:`render.accel.Geometry`, :class:`render.bsdf.MaterialTable` and
+    :class:`render.lights.LightSet` (and the BVHs' primID maps) into a :class:`KernelScene`."""
+    m = len(mats.kind)
+    tex = np.zeros((m, 3), np.int64)
+    chunks, off = [], 0
+    for i, t in sorted(mats.textures.items()):
+        t = np.ascontiguousarray(t[..., :3], dtype=np.float32)
+        tex[i] = off, t.shape[0], t.shape[1]
+        chunks.append(t.ravel())
+        off += t.size
+    tex_data = np.concatenate(chunks) if chunks else np.zeros(1, np.float32)
+    tri = np.ascontiguousarray(np.concatenate([geom.v0, geom.e1, geom.e2, geom.normal], axis=1), dtype=np.float64)
+    if len(tri) == 0:
+        tri = np.zeros((1, 12))
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+    floor = (1e-9 * geom.extent) ** 2
+    return KernelScene(
+        tri, i64(geom.obj if len(geom.obj) else np.zeros(1, np.int64)),
+        f64(geom.uv if len(geom.uv) else np.zeros((1, 3, 2))),
+        i64(mats.kind), f64(mats.albedo), f64(mats.ior), f64(mats.Le),
+        np.ascontiguousarray(mats.emits, dtype=np.bool_), np.ascontiguousarray(mats.two_sided, dtype=np.bool_),
+        tex, tex_data,
+        f64(lights.cdf if len(lights.cdf) else np.zeros(1)), f64(lights.pmf if len(lights.pmf) else np.zeros(1)),
+        f64(lights._packed if len(lights._packed) else np.zeros((1, 17))),
+        f64(lights.tri_pdf_area if len(lights.tri_pdf_area) else np.zeros(1)),
+        i64(lights.d_kind), f64(lights.d_pos), f64(lights.d_dir), f64(lights.d_I), f64(lights.d_cos),
+        i64(ids if len(ids) else np.zeros(1, np.int64)), i64(emit_ids if len(emit_ids) else np.zeros(1, np.int64)),
+        f64(np.asarray(background, dtype=np.float64).reshape(3)), np.array([geom.extent, floor, lights.n_area], np.float64))
+
+
+# ------------------------------------------------------------------ RNG (render.sampling's hash)
+@njit(inline="always", **_JIT)
+def _mix64(x):
+    x = x ^ (x >> _S30)
+    x = x * _M1
+    x = x ^ (x >> _S27)
+    x = x * _M2
+    return x ^ (x >> _S31)
+
+
+@njit(inline="always", **_JIT)
+def _uniform(key, dim):
+    """render.sampling.uniform for one key and dimension."""
+    x = _mix64(key + np.uint64(dim + 1) * _GOLDEN)
+    return np.float64(x >> _S11) * _INV_2_53
+
+
+@njit(**_JIT)
+def uniform_dims(keys, dim0, count):
+    """(N, count) uniforms of dimensions dim0.. (equals render.sampling.uniform_block)."""
+    out = np.empty((len(keys), count))
+    for i in range(len(keys)):
+        for j in range(count):
+            out[i, j] = _uniform(keys[i], dim0 + j)
+    return out
+
+
+# ------------------------------------------------------------------ camera rays
+@njit(**_JIT)
+def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, dd, jit):
+    """Camera samples of flat indices [start, stop): flat = sample * npix + pixel.
+
+    seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: (17,) float64
+    [fx, fy, cx, cy, R (9, row-major camera-to-world rotation), t (3), unused]. Writes keys (N,)
+    uint64, pix (N,) int64, jit (N, 2) jittered pixel positions (dims 0, 1), and when
+    ``pinhole`` the unit rays: o32, d32 (N, 3) float32 for Embree, dd (N, 3) float64.
+    """
+    for i in range(stop - start):
+        flat = start + i
+        p = flat % npix
+        s = sample0 + flat // npix
+        k = _mix64(np.uint64(p) * _GOLDEN ^ seed_mix)
+        key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
+        keys[i] = key
+        pix[i] = p
+        jx = _uniform(key, 0) + (p % width)
+        jy = _uniform(key, 1) + (p // width)
+        jit[i, 0] = jx
+        jit[i, 1] = jy
+        if pinhole:
+            x = (jx - cam[2]) / cam[0]
+            y = (jy - cam[3]) / cam[1]
+            nrm = math.sqrt(x * x + y * y + 1.0)
+            x, y, z = x / nrm, y / nrm, 1.0 / nrm
+            for c in range(3):
+                v = cam[4 + 3 * c] * x + cam[5 + 3 * c] * y + cam[6 + 3 * c] * z
+                dd[i, c] = v
+                d32[i, c] = v
+                o32[i, c] = cam[13 + c]
+
+
+# ------------------------------------------------------------------ small helpers
+@njit(inline="always", **_JIT)
+def _mis(pf, pg, power):
+    """render.sampling.mis_weight for scalars (power: 2.0 power heuristic, 1.0 balance)."""
+    if not pf > 0.0:
+        return 0.0
+    r = min(pg / pf, 1e150)
+    if power == 2.0:
+        r = r * r
+    return 1.0 / (1.0 + r)
+
+
+@njit(inline="always", **_JIT)
+def _offset(px, py, pz, extent):
+    return _OFFSET_REL * (max(max(abs(px), abs(py)), abs(pz)) + 1e-2 * extent)
+
+
+@njit(inline="always", **_JIT)
+def _frame(nx, ny, nz):
+    """render.sampling.orthonormal_frame (Duff et al. 2017) for one normal: (s, t)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
+
+
+@njit(inline="always", **_JIT)
+def _pick(cdf, u):
+    """min(searchsorted(cdf, u * cdf[-1], side='right'), len - 1)."""
+    x = u * cdf[len(cdf) - 1]
+    lo, hi = 0, len(cdf)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if cdf[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return min(lo, len(cdf) - 1)
+
+
+@njit(inline="always", **_JIT)
+def _albedo(albedo, tex, uv, d, obj, t, u, v):
+    """MaterialTable.diffuse_albedo for one hit: tint times the bilinear texture lookup
+    (render.texture.sample_bilinear, repeat wrapping) on textured objects. (Helpers take
+    arrays, never the KernelScene tuple: passing it would reference-count every array.)"""
+    h = tex[obj, 1]
+    w = tex[obj, 2]
+    off = tex[obj, 0]
+    b0 = 1.0 - u - v
+    tu = b0 * uv[t, 0, 0] + u * uv[t, 1, 0] + v * uv[t, 2, 0]
+    tv = b0 * uv[t, 0, 1] + u * uv[t, 1, 1] + v * uv[t, 2, 1]
+    x = tu * w - 0.5
+    y = (1.0 - tv) * h - 0.5
+    fx0, fy0 = math.floor(x), math.floor(y)
+    fx, fy = x - fx0, y - fy0
+    x0 = np.int64(fx0) % w
+    y0 = np.int64(fy0) % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    i00, i01, i10, i11 = off + (y0 * w + x0) * 3, off + (y0 * w + x1) * 3, off + (y1 * w + x0) * 3, off + (y1 * w + x1) * 3
+    f00, f01, f10, f11 = (1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy
+    return ((f00 * d[i00] + f01 * d[i01] + f10 * d[i10] + f11 * d[i11]) * albedo[obj, 0],
+            (f00 * d[i00 + 1] + f01 * d[i01 + 1] + f10 * d[i10 + 1] + f11 * d[i11 + 1]) * albedo[obj, 1],
+            (f00 * d[i00 + 2] + f01 * d[i01 + 2] + f10 * d[i10 + 2] + f11 * d[i11 + 2]) * albedo[obj, 2])
+
+
+@njit(inline="always", **_JIT)
+def _sample_area(area, k, floor, px, py, pz, u1, u2):
+    """LightSet.sample on area entry k (a row of LightSet._packed) from point p:
+    (valid, wi (3), dist, Li (3), solid-angle pdf)."""
+    su = math.sqrt(u1)
+    b1 = 1.0 - su
+    b2 = u2 * su
+    dx = area[k, 0] + b1 * area[k, 3] + b2 * area[k, 6] - px
+    dy = area[k, 1] + b1 * area[k, 4] + b2 * area[k, 7] - py
+    dz = area[k, 2] + b1 * area[k, 5] + b2 * area[k, 8] - pz
+    r2 = max(dx * dx + dy * dy + dz * dz, floor)
+    r = math.sqrt(r2)
+    wx, wy, wz = dx / r, dy / r, dz / r
+    cos_l = -(wx * area[k, 9] + wy * area[k, 10] + wz * area[k, 11])
+    emits = area[k, 16] > 0.0 or cos_l > 0.0
+    e = 1.0 if emits else 0.0
+    return (emits and cos_l != 0.0, wx, wy, wz, r, area[k, 13] * e, area[k, 14] * e, area[k, 15] * e,
+            area[k, 12] * r2 / max(abs(cos_l), _COS_FLOOR))
+
+
+@njit(**_JIT)
+def _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, li, floor, px, py, pz):
+    """LightSet.sample on point/spot/directional light li from point p: (valid, wi (3),
+    dist, Li (3)) (the pdf is the light's selection probability)."""
+    kind = d_kind[li]
+    if kind == DIRECTIONAL:
+        return True, -d_dir[li, 0], -d_dir[li, 1], -d_dir[li, 2], np.inf, d_I[li, 0], d_I[li, 1], d_I[li, 2]
+    dx, dy, dz = d_pos[li, 0] - px, d_pos[li, 1] - py, d_pos[li, 2] - pz
+    r2 = max(dx * dx + dy * dy + dz * dz, floor)
+    r = math.sqrt(r2)
+    wx, wy, wz = dx / r, dy / r, dz / r
+    fall = 1.0
+    if kind == SPOT:  # render.scene.spot_falloff
+        ct = -(wx * d_dir[li, 0] + wy * d_dir[li, 1] + wz * d_dir[li, 2])
+        ci, co = d_cos[li, 0], d_cos[li, 1]
+        x = min(max((ct - co) / max(ci - co, 1e-9), 0.0), 1.0)
+        fall = x * x * (3.0 - 2.0 * x)
+    s = fall / r2
+    return fall > 0.0, wx, wy, wz, r, d_I[li, 0] * s, d_I[li, 1] * s, d_I[li, 2] * s
+
+
+# ------------------------------------------------------------------ one bounce
+@njit(**_JIT)
+def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, flags, L,
+                 n_idx, n_keys, n_beta, n_dd, n_pdf, n_flags, n_o32, n_d32,
+                 q_o32, q_d32, q_t32, q_idx, q_val,
+                 l_o32, l_d32, l_dd, l_beta, l_pdf, l_idx):
+    """Shade the first hits (prim, tfar, hu, hv from Embree) of the live paths at ``depth``.
+
+    cfg: (16,) float64 settings [max_depth, direct, caustics, strategy, power, roulette,
+    rr_depth, has_bg, nee_area, nee_any, mis_on_hits, continue_diffuse, has_area, 0, 0, 0].
+    State of live path i: idx (output slot), keys (RNG), beta (3), dd (ray direction, float64),
+    pdf (density the ray was sampled with), flags (F_DELTA, F_AFTER_DIFF). L (paths, 3): radiance,
+    accumulated in place (emission found, background).
+
+    Writes the survivors, compacted in order, to n_* (their next rays to n_o32 / n_d32); the
+    shadow rays of next-event estimation to the queue q_* (origin, direction, tmax, path slot,
+    unoccluded contribution); for `direct`, the last BSDF rays to l_* (origin, direction,
+    throughput, pdf, slot). Returns (survivors, shadow rays, last rays).
+    """
+    max_depth = int(cfg[0])
+    direct = cfg[1] != 0.0
+    caustics = cfg[2] != 0.0
+    strategy = int(cfg[3])
+    power = cfg[4]
+    roulette = cfg[5] != 0.0 and depth >= int(cfg[6])
+    has_bg = cfg[7] != 0.0
+    nee_area = cfg[8] != 0.0
+    nee_any = cfg[9] != 0.0
+    mis_on_hits = cfg[10] != 0.0
+    continue_diffuse = cfg[11] != 0.0
+    has_area = cfg[12] != 0.0
+    extent, floor, n_area = ks.scal[0], ks.scal[1], np.int64(ks.scal[2])
+    base = 2 + 8 * depth
+    bg = ks.bg
+    ids, tri_obj, tris, kinds, albedo, iors, Le = ks.ids, ks.tri_obj, ks.tri, ks.kind, ks.albedo, ks.ior, ks.Le
+    emits, two_sided, tex, uv, tex_data, tri_pdf_area = ks.emits, ks.two_sided, ks.tex, ks.uv, ks.tex_data, ks.tri_pdf_area
+    cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos = ks.cdf, ks.pmf, ks.area, ks.d_kind, ks.d_pos, ks.d_dir, ks.d_I, ks.d_cos
+    has_lights = cdf[len(cdf) - 1] > 0.0  # LightSet.empty is False
+    nn = 0
+    nq = 0
+    nl = 0
+    for i in range(len(prim)):
+        slot = idx[i]
+        fl = flags[i]
+        prev_delta = (fl & F_DELTA) != 0
+        after_diff = (fl & F_AFTER_DIFF) != 0
+        pruned = (not caustics) and prev_delta and after_diff
+        dx, dy, dz = dd[i, 0], dd[i, 1], dd[i, 2]
+        b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
+        if prim[i] < 0:
+            if has_bg and not pruned:
+                L[slot, 0] += b0 * bg[0]
+                L[slot, 1] += b1 * bg[1]
+                L[slot, 2] += b2 * bg[2]
+            continue
+        t = ids[prim[i]]
+        obj = tri_obj[t]
+        kind = kinds[obj]
+        ngx, ngy, ngz = tris[t, 9], tris[t, 10], tris[t, 11]
+        cos_o = -(dx * ngx + dy * ngy + dz * ngz)
+        # ---- emission found by the ray
+        if emits[obj] and (two_sided[obj] or cos_o > 0.0):
+            w = 1.0
+            if not prev_delta:
+                if strategy == STRAT_LIGHT and has_area:
+                    w = 0.0
+                elif mis_on_hits:
+                    th = np.float64(tfar[i])
+                    w = _mis(pdf[i], tri_pdf_area[t] * th * th / max(abs(cos_o), _COS_FLOOR), power)
+            if pruned:
+                w = 0.0
+            L[slot, 0] += b0 * Le[obj, 0] * w
+            L[slot, 1] += b1 * Le[obj, 1] * w
+            L[slot, 2] += b2 * Le[obj, 2] * w
+        if depth == max_depth or kind == EMISSIVE or (direct and after_diff):
+            continue
+        u, v = np.float64(hu[i]), np.float64(hv[i])
+        px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
+        py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
+        pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
+        # shading normal: facing wo for two-sided materials, outward for dielectrics
+        if cos_o < 0.0 and kind != DIELECTRIC:
+            nx, ny, nz = -ngx, -ngy, -ngz
+        else:
+            nx, ny, nz = ngx, ngy, ngz
+        key = keys[i]
+        eps = _offset(px, py, pz, extent)
+        valid = False
+        delta = False
+        wx = wy = wz = 0.0
+        w0 = w1 = w2 = 0.0
+        spdf = 0.0
+        if kind == LAMBERT:
+            if tex[obj, 1] == 0:
+                a0, a1, a2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
+            else:
+                a0, a1, a2 = _albedo(albedo, tex, uv, tex_data, obj, t, u, v)
+            # ---- next-event estimation
+            if nee_any and has_lights:
+                k = _pick(cdf, _uniform(key, base))
+                u1, u2 = _uniform(key, base + 1), _uniform(key, base + 2)
+                if k < n_area:
+                    ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
+                    ldelta = False
+                else:
+                    ok, lx, ly, lz, ldist, L0, L1, L2 = _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, k - n_area,
+                                                                      floor, px, py, pz)
+                    lpdf = pmf[k]
+                    ldelta = True
+                if ok:
+                    cos_i = lx * nx + ly * ny + lz * nz
+                    if cos_i > 0.0 and (nee_area or ldelta):
+                        w = 1.0
+                        if strategy == STRAT_MIS and not ldelta:
+                            w = _mis(lpdf, cos_i * _INV_PI, power)
+                        side = eps if lx * ngx + ly * ngy + lz * ngz >= 0.0 else -eps
+                        q_o32[nq, 0], q_o32[nq, 1], q_o32[nq, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
+                        q_d32[nq, 0], q_d32[nq, 1], q_d32[nq, 2] = lx, ly, lz
+                        q_t32[nq] = min(max(ldist * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
+                        s = _INV_PI * cos_i * w / lpdf
+                        q_val[nq, 0] = b0 * a0 * L0 * s
+                        q_val[nq, 1] = b1 * a1 * L1 * s
+                        q_val[nq, 2] = b2 * a2 * L2 * s
+                        q_idx[nq] = slot
+                        nq += 1
+            if not continue_diffuse:
+                continue
+            # ---- cosine-weighted BSDF sample (polar warp, render.sampling.cosine_hemisphere)
+            u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
+            r = math.sqrt(u4)
+            phi = (2.0 * math.pi) * u5
+            lx, ly = r * math.cos(phi), r * math.sin(phi)
+            lz = math.sqrt(max(0.0, 1.0 - u4))
+            (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
+            wx = lx * sx + ly * tx + lz * nx
+            wy = lx * sy + ly * ty + lz * ny
+            wz = lx * sz + ly * tz + lz * nz
+            w0, w1, w2 = a0, a1, a2
+            spdf = lz * _INV_PI
+            valid = lz > 0.0 and cos_o != 0.0
+            if direct:  # the path ends here: queue its last BSDF ray
+                if valid and max(max(w0, w1), w2) > 0.0:
+                    side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
+                    l_o32[nl, 0], l_o32[nl, 1], l_o32[nl, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
+                    l_d32[nl, 0], l_d32[nl, 1], l_d32[nl, 2] = wx, wy, wz
+                    l_dd[nl, 0], l_dd[nl, 1], l_dd[nl, 2] = wx, wy, wz
+                    l_beta[nl, 0], l_beta[nl, 1], l_beta[nl, 2] = b0 * w0, b1 * w1, b2 * w2
+                    l_pdf[nl] = spdf
+                    l_idx[nl] = slot
+                    nl += 1
+                continue
+        else:
+            # ---- mirror and dielectric (render.bsdf.mirror_sample / dielectric_sample), local frame
+            (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
+            ox, oy, oz = -dx, -dy, -dz
+            wox = ox * sx + oy * sy + oz * sz
+            woy = ox * tx + oy * ty + oz * tz
+            woz = ox * nx + oy * ny + oz * nz
+            delta = True
+            if kind == MIRROR:
+                lx, ly, lz = -wox, -woy, woz
+                valid = woz != 0.0
+                w0, w1, w2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
+                spdf = 1.0
+            else:
+                ior = iors[obj]
+                # Fresnel (render.bsdf.fresnel_dielectric)
+                ci = min(max(woz, -1.0), 1.0)
+                eta_f = 1.0 / ior if ci < 0.0 else ior
+                aci = abs(ci)
+                s2 = (1.0 - aci * aci) / (eta_f * eta_f)
+                if s2 >= 1.0:
+                    F = 1.0
+                else:
+                    ct = math.sqrt(max(0.0, 1.0 - s2))
+                    rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
+                    rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
+                    F = 0.5 * (rpa * rpa + rpe * rpe)
+                eta = ior if woz >= 0.0 else 1.0 / ior
+                if _uniform(key, base + 3) < F:
+                    lx, ly, lz = -wox, -woy, woz
+                    spdf = F
+                    sc = 1.0
+                else:
+                    c = abs(woz)
+                    s2t = (1.0 - c * c) / (eta * eta)
+                    cos_t = math.sqrt(max(0.0, 1.0 - s2t))
+                    sgn = 1.0 if woz >= 0.0 else -1.0
+                    lx, ly, lz = -wox / eta, -woy / eta, -sgn * cos_t
+                    spdf = 1.0 - F
+                    sc = 1.0 / (eta * eta)
+                valid = woz != 0.0 and spdf > 0.0
+                w0 = w1 = w2 = sc
+            if not valid:
+                continue
+            wx = lx * sx + ly * tx + lz * nx
+            wy = lx * sy + ly * ty + lz * ny
+            wz = lx * sz + ly * tz + lz * nz
+        if not valid:
+            continue
+        b0, b1, b2 = b0 * w0, b1 * w1, b2 * w2
+        if roulette:
+            survive = min(1.0, max(max(b0, b1), b2))
+            if not _uniform(key, base + 6) < survive:
+                continue
+            b0, b1, b2 = b0 / survive, b1 / survive, b2 / survive
+        if not max(max(b0, b1), b2) > 0.0:
+            continue
+        n_idx[nn] = slot
+        n_keys[nn] = key
+        n_beta[nn, 0], n_beta[nn, 1], n_beta[nn, 2] = b0, b1, b2
+        n_dd[nn, 0], n_dd[nn, 1], n_dd[nn, 2] = wx, wy, wz
+        n_d32[nn, 0], n_d32[nn, 1], n_d32[nn, 2] = wx, wy, wz
+        side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
+        n_o32[nn, 0], n_o32[nn, 1], n_o32[nn, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
+        n_pdf[nn] = spdf
+        nf = fl & F_AFTER_DIFF
+        if kind == LAMBERT:
+            nf = F_AFTER_DIFF
+        if delta:
+            nf |= F_DELTA
+        n_flags[nn] = nf
+        nn += 1
+    return nn, nq, nl
+
+
+@njit(**_JIT)
+def last_bounce_queue(ks, cfg, n, prim, tfar, l_dd, l_beta, l_pdf, l_idx, l_o32, l_d32,
+                      q0, q_o32, q_d32, q_t32, q_idx, q_val):
+    """`direct`'s last BSDF rays: n rays l_* and their hits in the emitter-only BVH (prim,
+    tfar; prim None-like (length 0) when not queried). An emitter hit on its emitting side
+    queues an occlusion query up to it with the MIS-weighted emission; a miss queues one to
+    infinity with the background (when lit). Appends to the shadow queue from q0; returns
+    the new queue length."""
+    strategy = int(cfg[3])
+    power = cfg[4]
+    has_bg = cfg[7] != 0.0
+    has_area = cfg[12] != 0.0
+    queried = len(prim) > 0
+    bg = ks.bg
+    nq = q0
+    for j in range(n):
+        if queried and prim[j] >= 0:
+            t = ks.emit_ids[prim[j]]
+            obj = ks.tri_obj[t]
+            cos_hit = -(l_dd[j, 0] * ks.tri[t, 9] + l_dd[j, 1] * ks.tri[t, 10] + l_dd[j, 2] * ks.tri[t, 11])
+            if not (ks.two_sided[obj] or cos_hit > 0.0):
+                continue
+            th = np.float64(tfar[j])
+            w = 1.0
+            if strategy == STRAT_MIS and has_area:
+                w = _mis(l_pdf[j], ks.tri_pdf_area[t] * th * th / max(abs(cos_hit), _COS_FLOOR), power)
+            q_t32[nq] = th * (1.0 - 1e-6)
+            for c in range(3):
+                q_val[nq, c] = l_beta[j, c] * ks.Le[obj, c] * w
+        elif has_bg:
+            q_t32[nq] = _TMAX_CAP
+            for c in range(3):
+                q_val[nq, c] = l_beta[j, c] * bg[c]
+        else:
+            continue
+        for c in range(3):
+            q_o32[nq, c] = l_o32[j, c]
+            q_d32[nq, c] = l_d32[j, c]
+        q_idx[nq] = l_idx[j]
+        nq += 1
+    return nq
+
+
+@njit(**_JIT)
+def add_unoccluded(L, q_idx, q_val, occ):
+    """L[q_idx[k]] += q_val[k] for the shadow rays Embree found unoccluded (occ[k] == -1)."""
+    for k in range(len(occ)):
+        if occ[k] == -1:
+            s = q_idx[k]
+            L[s, 0] += q_val[k, 0]
+            L[s, 1] += q_val[k, 1]
+            L[s, 2] += q_val[k, 2]
+
+
+@njit(**_JIT)
+def accumulate(s1, s2, cnt, pix, L):
+    """Film moments: s1[pix] += L, s2[pix] += L^2, cnt[pix] += 1, in sample order."""
+    for i in range(len(pix)):
+        p = pix[i]
+        for c in range(3):
+            x = L[i, c]
+            s1[p, c] += x
+            s2[p, c] += x * x
+        cnt[p] += 1
