@@ -47,10 +47,14 @@ from typing import Any, Callable, Iterator, Sequence
 from .artifacts import BadInput
 
 __all__ = ["ENV_SCHEDULER", "TASK_THREADS", "ClusterConfig", "default_workers", "LocalEngine", "DaskEngine", "engine", "worker_cache",
-           "machine_cores", "resolve_scheduler"]
+           "machine_cores", "resolve_scheduler", "local_cluster"]
 
 #: environment variable naming an existing scheduler (same as ``--scheduler``)
 ENV_SCHEDULER = "LUMIGRAPH_SCHEDULER"
+#: environment of local worker processes: Dask's default less MALLOC_TRIM_THRESHOLD_, which
+#: disables glibc's adaptive mmap threshold and made every large numpy temporary of a render a
+#: fresh mmap (+50% time per batch measured here); see docs/scaling.md
+LOCAL_WORKER_ENV = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
 #: threads a unit of work uses on a machine sized by default (the path tracer's own default)
 TASK_THREADS = 2
 
@@ -291,6 +295,18 @@ class DaskEngine:
 # --------------------------------------------------------------------------------------------
 # the engine context
 
+def local_cluster(workers: int, dashboard: bool = True):
+    """A :class:`distributed.LocalCluster` of ``workers`` single-threaded worker processes on
+    loopback, with :data:`LOCAL_WORKER_ENV` (dashboard on a free port unless ``dashboard`` is
+    False). The caller closes it (it is a context manager)."""
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": LOCAL_WORKER_ENV}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address="127.0.0.1:0" if dashboard else None, silence_logs=logging.ERROR)
+
+
 @contextmanager
 def engine(config: ClusterConfig | None = None, quiet: bool = False, echo: Callable[[str], None] | None = None
            ) -> Iterator[LocalEngine | DaskEngine]:
@@ -306,7 +322,7 @@ def engine(config: ClusterConfig | None = None, quiet: bool = False, echo: Calla
         yield LocalEngine()
         return
     import dask
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if echo is None:
         from .progress import console
@@ -325,8 +341,7 @@ def engine(config: ClusterConfig | None = None, quiet: bool = False, echo: Calla
                     raise BadInput(f"--scheduler {address}: no Dask scheduler answered within "
                                    f"{config.connect_timeout_s:g} s") from None
             else:
-                cluster = LocalCluster(n_workers=config.local_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                       dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
+                cluster = local_cluster(config.local_workers)
                 client = Client(cluster)
             try:
                 eng = DaskEngine(client, config, local=cluster is not None)
