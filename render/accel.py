@@ -25,6 +25,7 @@ import numpy as np
 import embreex.mesh_construction as _emesh
 import embreex.rtcore_scene as _escene
 
+from . import embree_direct as _edirect
 from .scene import Scene
 
 __all__ = ["Geometry", "Hits", "Accel", "spawn_origin", "offset_eps", "OFFSET_REL"]
@@ -154,16 +155,24 @@ class Accel:
         keep = g.valid if subset is None else g.valid & np.asarray(subset, bool)
         self._ids = np.nonzero(keep)[0].astype(np.int64)  # embree primID -> global tri
         self._scene = None
+        #: the same triangles as a scene the compiled kernels query directly (render.embree_direct),
+        #: or None (embreex's library not found, or no triangles)
+        self.direct = None
         if len(self._ids):
             tv = np.stack([g.v0, g.v0 + g.e1, g.v0 + g.e2], axis=1)[self._ids].astype(np.float32)
             self._scene = _escene.EmbreeScene()
             _emesh.TriangleMesh(self._scene, np.ascontiguousarray(tv))
+            if _edirect.AVAILABLE:
+                self.direct = _edirect.DirectScene(tv)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+        if self.direct is not None:
+            self.direct.close()
+            self.direct = None
 
     def __del__(self):
         try:
@@ -235,6 +244,24 @@ class Accel:
             return np.full(n, -1, np.int32), np.full(n, np.inf, np.float32), z, z
         out = self._scene.run(o32, d32, dists=None, output=True)
         return out["primID"], out["tfar"], out["u"], out["v"]
+
+    def intersect_fast(self, o32: np.ndarray, d32: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`intersect_raw`, through compiled code calling Embree directly when possible."""
+        if self.direct is None or len(o32) == 0:
+            return self.intersect_raw(o32, d32)
+        n = len(o32)
+        prim, tfar = np.empty(n, np.int32), np.empty(n, np.float32)
+        u, v = np.empty(n, np.float32), np.empty(n, np.float32)
+        _edirect.intersect_many(self.direct.handle, o32, d32, prim, tfar, u, v)
+        return prim, tfar, u, v
+
+    def occluded_fast(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
+        """:meth:`occluded_raw`, through compiled code calling Embree directly when possible."""
+        if self.direct is None or len(o32) == 0:
+            return self.occluded_raw(o32, d32, t32)
+        occ = np.empty(len(o32), np.int32)
+        _edirect.occluded_many(self.direct.handle, o32, d32, t32, occ)
+        return occ
 
     def occluded_raw(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
         """Embree's occlusion output for float32 rays (N, 3) and tmax (N,), on the calling

@@ -99,7 +99,7 @@ class RenderSettings:
     strategy: str = "mis"
     heuristic: str = "power"
     threads: int = 2
-    batch_paths: int = 1 << 14
+    batch_paths: int = 1 << 16
 
     def __post_init__(self):
         if self.integrator not in ("auto", "direct", "path"):
@@ -196,6 +196,16 @@ def _camera_vector(cam: Camera) -> np.ndarray:
     return np.concatenate([[k.fx, k.fy, k.cx, k.cy], c2w[:3, :3].ravel(), c2w[:3, 3]])
 
 
+def _state_buffers(n: int) -> tuple:
+    return (np.empty(n, np.int64), np.empty(n, np.uint64), np.empty((n, 3)), np.empty(n), np.empty(n, np.uint8),
+            np.empty((n, 3), np.float32), np.empty((n, 3), np.float32))
+
+
+def _queue_buffers(n: int) -> tuple:
+    return (np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
+            np.empty(n, np.int64), np.empty((n, 3)))
+
+
 def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, cfg: np.ndarray,
            start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
@@ -211,56 +221,51 @@ def _trace(ps: PreparedScene, cam: Camera, st: RenderSettings, integ: str, cfg: 
     k = cam.intrinsics
     n = stop - start
     npix = k.width * k.height
-    keys = np.empty(n, np.uint64)
+    direct = integ == "direct"
+    # wavefront state, double-buffered (current, next) and reused across bounces:
+    # [slot, RNG key, throughput (3), pdf, flags, ray origin (3) f32, ray direction (3) f32]
+    cur, nxt = _state_buffers(n), _state_buffers(n)
+    q = _queue_buffers(2 * n if direct else n)  # shadow rays: origin, dir, tmax, slot, contribution
+    last = (np.empty((n if direct else 0, 3), np.float32), np.empty((n if direct else 0, 3), np.float32),
+            np.empty((n if direct else 0, 3)), np.empty(n if direct else 0), np.empty(n if direct else 0, np.int64))
     pix = np.empty(n, np.int64)
-    o32 = np.empty((n, 3), np.float32)
-    d32 = np.empty((n, 3), np.float32)
-    dd = np.empty((n, 3))
     jit = np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(st.seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
-    camera_rays(start, stop, npix, k.width, sample0, seed_mix, _camera_vector(cam), pinhole, keys, pix, o32, d32, dd, jit)
+    camera_rays(start, stop, npix, k.width, sample0, seed_mix, _camera_vector(cam), pinhole, cur[1], pix,
+                cur[5], cur[6], jit)
     if not pinhole:
-        o, dd = cam.pixel_rays(jit)
-        o32, d32 = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(dd, np.float32)
+        o, d = cam.pixel_rays(jit)
+        cur[5][:], cur[6][:] = o, d
+    cur[0][:] = np.arange(n)
+    cur[2][:] = 1.0
+    cur[3][:] = 0.0
+    cur[4][:] = F_DELTA  # the camera ray counts as specular: emission seen directly has weight 1
     L = np.zeros((n, 3))
-    idx = np.arange(n, dtype=np.int64)
-    beta = np.ones((n, 3))
-    pdf = np.zeros(n)
-    flags = np.full(n, F_DELTA, np.uint8)  # the camera ray counts as specular: emission seen directly has weight 1
-    direct = integ == "direct"
     query_emitters = direct and ps.emit_accel is not None and st.strategy != "light"
     no_hits = (np.zeros(0, np.int32), np.zeros(0, np.float32))
     nrays = 0
+    m = n
     for depth in range(st.max_depth + 1):
-        m = len(idx)
         if m == 0:
             break
-        prim, tfar, hu, hv = accel.intersect_raw(o32, d32)
+        idx, keys, beta, pdf, flags, o32, d32 = (a[:m] for a in cur)
+        prim, tfar, hu, hv = accel.intersect_fast(o32, d32)
         nrays += m
-        nxt = (np.empty(m, np.int64), np.empty(m, np.uint64), np.empty((m, 3)), np.empty((m, 3)), np.empty(m),
-               np.empty(m, np.uint8), np.empty((m, 3), np.float32), np.empty((m, 3), np.float32))
-        qcap = 2 * m if direct else m
-        q = (np.empty((qcap, 3), np.float32), np.empty((qcap, 3), np.float32), np.empty(qcap, np.float32),
-             np.empty(qcap, np.int64), np.empty((qcap, 3)))
-        lcap = m if direct else 0
-        last = (np.empty((lcap, 3), np.float32), np.empty((lcap, 3), np.float32), np.empty((lcap, 3)),
-                np.empty((lcap, 3)), np.empty(lcap), np.empty(lcap, np.int64))
-        nn, nq, nl = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, flags, L,
+        nn, nq, nl = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, flags, L,
                                   *nxt, *q, *last)
         if nl:
             l_o32, l_d32 = last[0][:nl], last[1][:nl]
             ehits = no_hits
             if query_emitters:
-                ehits = ps.emit_accel.intersect_raw(l_o32, l_d32)[:2]
+                ehits = ps.emit_accel.intersect_fast(l_o32, l_d32)[:2]
                 nrays += nl
-            nq = last_bounce_queue(ks, cfg, nl, ehits[0], ehits[1], last[2], last[3], last[4], last[5],
-                                   l_o32, l_d32, nq, *q)
+            nq = last_bounce_queue(ks, cfg, nl, ehits[0], ehits[1], last[2], last[3], last[4], l_o32, l_d32, nq, *q)
         if nq:
-            occ = accel.occluded_raw(q[0][:nq], q[1][:nq], q[2][:nq])
+            occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
             nrays += nq
             add_unoccluded(L, q[3], q[4], occ)
-        idx, keys, beta, dd, pdf, flags, o32, d32 = (a[:nn] for a in nxt)
+        cur, nxt, m = nxt, cur, nn
     return pix, L, nrays
 
 

@@ -10,7 +10,7 @@ while the other shades).
 The math is the same as the numpy reference implementations, which stay the public, tested
 interfaces for other integrators: warps and the hash RNG of :mod:`render.sampling`, the BSDFs of
 :mod:`render.bsdf`, light sampling of :mod:`render.lights`, texture lookup of
-:mod:`render.texture`. tests/render/test_pt_kernels.py checks each compiled piece against them.
+:mod:`render.texture`. tests/render/test_pathtracer_kernels.py checks each compiled piece against them.
 
 Precision: shading is float64 (as the numpy code); ray origins, directions and tmax are
 rounded to float32 once, where Embree consumes them (it intersects in float32), and hit
@@ -150,13 +150,13 @@ def uniform_dims(keys, dim0, count):
 
 # ------------------------------------------------------------------ camera rays
 @njit(**_JIT)
-def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, dd, jit):
+def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit):
     """Camera samples of flat indices [start, stop): flat = sample * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: (17,) float64
     [fx, fy, cx, cy, R (9, row-major camera-to-world rotation), t (3), unused]. Writes keys (N,)
     uint64, pix (N,) int64, jit (N, 2) jittered pixel positions (dims 0, 1), and when
-    ``pinhole`` the unit rays: o32, d32 (N, 3) float32 for Embree, dd (N, 3) float64.
+    ``pinhole`` the unit rays o32, d32 (N, 3) float32 (what Embree traces and shading reads).
     """
     for i in range(stop - start):
         flat = start + i
@@ -177,7 +177,6 @@ def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys,
             x, y, z = x / nrm, y / nrm, 1.0 / nrm
             for c in range(3):
                 v = cam[4 + 3 * c] * x + cam[5 + 3 * c] * y + cam[6 + 3 * c] * z
-                dd[i, c] = v
                 d32[i, c] = v
                 o32[i, c] = cam[13 + c]
 
@@ -290,15 +289,15 @@ def _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, li, floor, px, py, pz):
 
 # ------------------------------------------------------------------ one bounce
 @njit(**_JIT)
-def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, flags, L,
-                 n_idx, n_keys, n_beta, n_dd, n_pdf, n_flags, n_o32, n_d32,
+def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, flags, L,
+                 n_idx, n_keys, n_beta, n_pdf, n_flags, n_o32, n_d32,
                  q_o32, q_d32, q_t32, q_idx, q_val,
-                 l_o32, l_d32, l_dd, l_beta, l_pdf, l_idx):
+                 l_o32, l_d32, l_beta, l_pdf, l_idx):
     """Shade the first hits (prim, tfar, hu, hv from Embree) of the live paths at ``depth``.
 
     cfg: (16,) float64 settings [max_depth, direct, caustics, strategy, power, roulette,
     rr_depth, has_bg, nee_area, nee_any, mis_on_hits, continue_diffuse, has_area, 0, 0, 0].
-    State of live path i: idx (output slot), keys (RNG), beta (3), dd (ray direction, float64),
+    State of live path i: idx (output slot), keys (RNG), beta (3), d32 (the ray's direction),
     pdf (density the ray was sampled with), flags (F_DELTA, F_AFTER_DIFF). L (paths, 3): radiance,
     accumulated in place (emission found, background).
 
@@ -335,7 +334,9 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, f
         prev_delta = (fl & F_DELTA) != 0
         after_diff = (fl & F_AFTER_DIFF) != 0
         pruned = (not caustics) and prev_delta and after_diff
-        dx, dy, dz = dd[i, 0], dd[i, 1], dd[i, 2]
+        # the float32 direction Embree traced (rounding 6e-8: only cosines and specular
+        # reflection/refraction read it, hit points come from barycentrics)
+        dx, dy, dz = np.float64(d32[i, 0]), np.float64(d32[i, 1]), np.float64(d32[i, 2])
         b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
         if prim[i] < 0:
             if has_bg and not pruned:
@@ -419,7 +420,9 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, f
             u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
             r = math.sqrt(u4)
             phi = (2.0 * math.pi) * u5
-            lx, ly = r * math.cos(phi), r * math.sin(phi)
+            c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length
+            sn = math.sqrt(max(0.0, 1.0 - c * c))
+            lx, ly = r * c, r * (sn if u5 < 0.5 else -sn)
             lz = math.sqrt(max(0.0, 1.0 - u4))
             (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
             wx = lx * sx + ly * tx + lz * nx
@@ -433,7 +436,6 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, f
                     side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
                     l_o32[nl, 0], l_o32[nl, 1], l_o32[nl, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
                     l_d32[nl, 0], l_d32[nl, 1], l_d32[nl, 2] = wx, wy, wz
-                    l_dd[nl, 0], l_dd[nl, 1], l_dd[nl, 2] = wx, wy, wz
                     l_beta[nl, 0], l_beta[nl, 1], l_beta[nl, 2] = b0 * w0, b1 * w1, b2 * w2
                     l_pdf[nl] = spdf
                     l_idx[nl] = slot
@@ -499,7 +501,6 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, f
         n_idx[nn] = slot
         n_keys[nn] = key
         n_beta[nn, 0], n_beta[nn, 1], n_beta[nn, 2] = b0, b1, b2
-        n_dd[nn, 0], n_dd[nn, 1], n_dd[nn, 2] = wx, wy, wz
         n_d32[nn, 0], n_d32[nn, 1], n_d32[nn, 2] = wx, wy, wz
         side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
         n_o32[nn, 0], n_o32[nn, 1], n_o32[nn, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
@@ -515,7 +516,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, dd, pdf, f
 
 
 @njit(**_JIT)
-def last_bounce_queue(ks, cfg, n, prim, tfar, l_dd, l_beta, l_pdf, l_idx, l_o32, l_d32,
+def last_bounce_queue(ks, cfg, n, prim, tfar, l_beta, l_pdf, l_idx, l_o32, l_d32,
                       q0, q_o32, q_d32, q_t32, q_idx, q_val):
     """`direct`'s last BSDF rays: n rays l_* and their hits in the emitter-only BVH (prim,
     tfar; prim None-like (length 0) when not queried). An emitter hit on its emitting side
@@ -533,7 +534,8 @@ def last_bounce_queue(ks, cfg, n, prim, tfar, l_dd, l_beta, l_pdf, l_idx, l_o32,
         if queried and prim[j] >= 0:
             t = ks.emit_ids[prim[j]]
             obj = ks.tri_obj[t]
-            cos_hit = -(l_dd[j, 0] * ks.tri[t, 9] + l_dd[j, 1] * ks.tri[t, 10] + l_dd[j, 2] * ks.tri[t, 11])
+            cos_hit = -(np.float64(l_d32[j, 0]) * ks.tri[t, 9] + np.float64(l_d32[j, 1]) * ks.tri[t, 10]
+                        + np.float64(l_d32[j, 2]) * ks.tri[t, 11])
             if not (ks.two_sided[obj] or cos_hit > 0.0):
                 continue
             th = np.float64(tfar[j])
