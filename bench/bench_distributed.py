@@ -21,8 +21,10 @@ the shared scene), and the scheduler's per-task overhead from a flood of no-op t
 Projection (:func:`simulate`): a discrete-event model of the stage on W single-core workers
 and one scheduler that spends ``c_s`` seconds of its single thread on every task, fed with the
 constants measured here (batch render time per path on one core, fold and finish times, bytes
-per task, c_s). It is checked against the measured 1- and 2-worker times (``model_check``) and
-then evaluated on a views x spp x workers grid at 640x480 (``projection``).
+per task, c_s, all as CPU seconds: what a free core takes, whatever the load). It is checked
+against the 2-worker run (``model_check``: work in CPU seconds, and wall time at the CPU share
+the OS granted us) and then evaluated on a views x spp x workers grid at 640x480
+(``projection_*``).
 
 The machine is shared: the load average before and after is recorded, and the figures are
 ratios measured in the same run. Run: ``.venv/bin/python -m bench.bench_distributed``; writes
@@ -89,14 +91,15 @@ def _noop(i):
 
 
 def _scheduler_overhead(client) -> dict:
-    """Wall time per no-op task over FLOOD tasks (submitted at once, gathered): the scheduler's
-    and the comms' cost per task, the floor under any unit of work."""
+    """Per no-op task over FLOOD tasks (submitted at once, gathered): wall time, and CPU time of
+    this process, which runs the client and the local cluster's scheduler (the scheduler's cost
+    per task on a free core): the floor under any unit of work."""
     client.gather(client.map(_noop, range(50), pure=False))  # warm up
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     client.gather(client.map(_noop, range(FLOOD), pure=False))
-    dt = time.perf_counter() - t0
+    dt, dc = time.perf_counter() - t0, time.process_time() - c0
     return {"tasks": FLOOD, "seconds": round(dt, 3), "ms_per_task": round(1e3 * dt / FLOOD, 3),
-            "tasks_per_s": round(FLOOD / dt, 1)}
+            "cpu_ms_per_task": round(1e3 * dc / FLOOD, 3), "tasks_per_s": round(FLOOD / dt, 1)}
 
 
 def _task_bytes(rig) -> dict:
@@ -118,47 +121,79 @@ def _task_bytes(rig) -> dict:
 
 def simulate(views: int, spp: int, workers: int, t_batch: float, t_fold: float, t_finish: float, t_client: float,
              c_sched: float, transfer_s: float = 0.0, batch: int = 8) -> float:
-    """Predicted wall time (s) of one reference run (engine start-up excluded).
+    """Predicted wall time (s) of one reference run (engine start-up excluded): a discrete-event
+    model of how the stage runs on Dask.
 
-    Model: ``views`` x ceil(spp / batch) batch tasks of ``t_batch`` s, each view's batches
-    folded in order (tasks of ``t_fold`` s plus ``transfer_s`` when the batch result crosses
-    workers, probability (W-1)/W) and finished (``t_finish`` s on a worker, then ``t_client``
-    s of the client writing files, serially). A single scheduler serves every task submission
-    and completion in order at ``c_sched`` s each; ``workers`` single-slot workers take ready
-    tasks in priority order (view, then batch) as Dask does.
+    ``views`` x ceil(spp / batch) batch tasks of ``t_batch`` s, in priority order (view, then
+    batch), each started when one of ``workers`` single-slot workers is free. Each view's
+    results are folded in batch order: fold i starts when batch i and fold i-1 are done and
+    takes ``t_fold`` s plus ``transfer_s`` when the batch result was computed on another worker
+    (probability (W-1)/W); folds are short and do not hold a worker slot. The last fold is
+    finished (``t_finish`` s) and the client writes the view's files (``t_client`` s, one view
+    at a time). One scheduler thread serves every task (batch, fold, finish) in order of
+    readiness and spends ``c_sched`` s on each: that is where it becomes the bottleneck.
     """
     import heapq
 
     nb = -(-spp // batch)
     cross = transfer_s * (workers - 1) / workers
-    free = [0.0] * workers                      # when each worker is next free
-    heapq.heapify(free)
-    sched = 0.0                                 # when the scheduler is next free
-    # batches in priority order; each view's fold chain runs as its batches complete
-    fold_ready = [0.0] * views
-    client = 0.0
-    done_batches: list[list[float]] = [[] for _ in range(views)]
-    for v in range(views):
-        for b in range(nb):
-            sched += c_sched                    # dispatch
-            start = max(heapq.heappop(free), sched)
-            end = start + t_batch
-            heapq.heappush(free, end)
-            done_batches[v].append(end)
-    for v in range(views):
-        t = done_batches[v][0]
-        for end in done_batches[v][1:]:
-            sched = max(sched, end) + c_sched  # completion + fold dispatch
-            t = max(t, end, sched) + t_fold + cross
-        sched = max(sched, t) + c_sched
-        fold_ready[v] = t + t_finish
-        client = max(client, fold_ready[v]) + t_client
-    return max(client, sched, max(free))
+    events: list[tuple[float, int, str, int, int]] = []  # (ready time, seq, kind, view, batch)
+    seq = 0
+
+    def push(t, kind, v, i):
+        nonlocal seq
+        heapq.heappush(events, (t, seq, kind, v, i))
+        seq += 1
+
+    order = [(v, i) for v in range(views) for i in range(nb)]
+    nxt = 0
+    for _ in range(min(workers, len(order))):
+        push(0.0, "batch", *order[nxt])
+        nxt += 1
+    sched = client = end = 0.0
+    batch_done = [[None] * nb for _ in range(views)]
+    acc_done = [None] * views          # when view v's accumulated result is ready
+    acc_upto = [0] * views             # last batch folded into it (batch 0 is the first acc)
+    folding = [False] * views
+
+    def advance(v):                    # push view v's next fold (or its finish) when possible
+        if folding[v] or acc_done[v] is None:
+            return
+        j = acc_upto[v] + 1
+        if j == nb:
+            push(acc_done[v], "finish", v, 0)
+            acc_done[v] = None
+        elif batch_done[v][j] is not None:
+            folding[v] = True
+            push(max(acc_done[v], batch_done[v][j]), "fold", v, j)
+
+    while events:
+        t, _, kind, v, i = heapq.heappop(events)
+        if kind == "batch-done":
+            batch_done[v][i] = t
+            if nxt < len(order):       # the freed worker takes the next batch
+                push(t, "batch", *order[nxt])
+                nxt += 1
+            if i == 0:
+                acc_done[v] = t
+            advance(v)
+            continue
+        s = max(sched, t)
+        sched = s + c_sched
+        if kind == "batch":
+            push(sched + t_batch, "batch-done", v, i)
+        elif kind == "fold":
+            acc_done[v], acc_upto[v], folding[v] = sched + t_fold + cross, i, False
+            advance(v)
+        else:  # finish, then the client writes the view
+            client = max(client, sched + t_finish) + t_client
+        end = max(end, sched)
+    return max(end, client)
 
 
 def _constants(rig) -> dict:
-    """Per-task times measured in process on one core at SIZE, and at 640x480 by scaling with
-    the pixel count (work per path is independent of the image size)."""
+    """Per-task CPU seconds measured in process on one thread at SIZE (the time on a free core,
+    whatever the machine's load); :func:`_projection` scales them to 640x480 by pixel count."""
     from render import pathtracer
     from render.effects import scene_effects
     from render.image_io import write_exr, write_preview
@@ -168,21 +203,22 @@ def _constants(rig) -> dict:
     eff = frozenset(scene_effects(rig.scene))
     st = pathtracer.RenderSettings(integrator="direct", spp=SPP, threads=1)
     render_batch(rig.scene, "bench-const", cam, st, (0, 8), eff)  # warm-up, builds the BVH
-    t0 = time.perf_counter()
+    clock = time.process_time  # CPU seconds of this (single-threaded) work: what a free core would take
+    t0 = clock()
     parts = [render_batch(rig.scene, "bench-const", cam, st, (a, a + 8), eff) for a in (0, 8)]
-    t_batch = (time.perf_counter() - t0) / 2
-    t0 = time.perf_counter()
+    t_batch = (clock() - t0) / 2
+    t0 = clock()
     acc = fold_batches(*parts)
-    t_fold = time.perf_counter() - t0
-    t0 = time.perf_counter()
+    t_fold = clock() - t0
+    t0 = clock()
     mean, var, _ = finish_view(acc)
-    t_finish = time.perf_counter() - t0
+    t_finish = clock() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0 = clock()
         write_exr(Path(tmp) / "a.exr", mean)
         write_exr(Path(tmp) / "b.exr", var)
         write_preview(Path(tmp) / "c.png", mean)
-        t_client = time.perf_counter() - t0
+        t_client = clock() - t0
     px = SIZE[0] * SIZE[1]
     return {"pixels": px, "t_batch_s": t_batch, "paths_per_s_one_core": 8 * px / t_batch, "t_fold_s": t_fold,
             "t_finish_s": t_finish, "t_client_write_s": t_client}
@@ -234,11 +270,11 @@ def main() -> dict:
                     figures["scheduler_overhead"] = _scheduler_overhead(client)
     med = {k: statistics.median(v) for k, v in times.items()}
     const = _constants(rig)
-    c_sched = figures["scheduler_overhead"]["ms_per_task"] / 1e3
+    c_sched = figures["scheduler_overhead"]["cpu_ms_per_task"] / 1e3
     n_views = 8
     figures["model_constants"] = {k: round(v, 5) for k, v in const.items()}
-    # apples to apples: the model's single-core workers against the 2 single-threaded workers
-    # on a loaded machine compare work (CPU seconds), and wall time at the CPU share we were granted
+    # the model's single-core workers against the 2 single-threaded workers; on a loaded machine
+    # compare the work (CPU seconds), and the wall time at the CPU share the OS granted us
     n_tasks = n_views * (2 * -(-SPP // 8)) + 1
     work = (n_views * -(-SPP // 8) * const["t_batch_s"] + n_views * (const["t_finish_s"] + const["t_client_write_s"])
             + n_tasks * c_sched)
@@ -246,10 +282,11 @@ def main() -> dict:
                          const["t_client_write_s"], c_sched)
     share = statistics.median(cpus["dask_2"]) / med["dask_2"]
     figures["model_check"] = {"dask_2_measured_s": round(med["dask_2"], 3), "dask_2_predicted_on_2_free_cores_s":
-                              round(dedicated, 3), "dask_2_predicted_at_granted_share_s": round(dedicated * 2 / share, 3),
+                              round(dedicated, 3), "dask_2_predicted_at_granted_share_s": round(max(dedicated, work / share), 3),
+                              "granted_cores": round(share, 3),
                               "model_work_cpu_s": round(work, 3), "dask_2_measured_cpu_s": round(
                                   statistics.median(cpus["dask_2"]), 3)}
-    figures["projection_measured_scheduler"] = _projection(const, c_sched)
+    figures["projection_measured_scheduler"] = _projection(const, c_sched)  # CPU cost per task here
     figures["projection_1ms_scheduler"] = _projection(const, 1e-3)  # Dask's documented ~1 ms per task
     figures["seconds"] = {k: {"median": round(med[k], 3), "all": [round(t, 3) for t in v]} for k, v in times.items()}
     figures["cpu_seconds"] = {k: round(statistics.median(v), 3) for k, v in cpus.items()}

@@ -66,7 +66,8 @@ def render_batch(scene, scene_key: str, cam: Camera, settings: pathtracer.Render
 
     Runs wherever the engine puts it; the scene's BVH is built once per process (keyed by
     ``scene_key``, unique per run) and reused across batches and views."""
-    prepared = worker_cache(scene_key, lambda: pathtracer.prepare(scene))
+    threads = settings.threads  # the BVH's query threads too: a task uses no more cores than it was given
+    prepared = worker_cache(f"{scene_key}-{threads}", lambda: pathtracer.prepare(scene, threads=threads))
     result = pathtracer.render(scene, cam, settings, sample_range, effects, prepared)
     return result.film, result.stats
 
@@ -125,7 +126,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         task = bar.add_task(f"reference {rig.scene.name}", total=len(chosen) * len(batches),
                             info=f"{chosen_integrator}, {spp} spp")
         scene = eng.share(rig.scene)
-        worker_cache(scene.key, lambda: prepared)  # in process, reuse the BVH built above
+        worker_cache(f"{scene.key}-{settings.threads}", lambda: prepared)  # in process: reuse the BVH above
         if eng.render_threads != settings.threads:  # threads never change a render's result
             settings = replace(settings, threads=eng.render_threads)
 
