@@ -132,12 +132,14 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
         root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
         seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
         spp: int = typer.Option(16, help="reference samples per pixel"),
+        colmap_image_scale: float = typer.Option(0.5, help="COLMAP's image scale (params.yaml poses.image_scale)"),
         quiet: bool = QUIET):
     """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, then a summary."""
     from .pipeline_run import run_pipeline
 
     rig, path = _load(scene)
-    summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, quiet=quiet)
+    summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, colmap_image_scale=colmap_image_scale,
+                           quiet=quiet)
     for line in summary:
         typer.echo(line)
 

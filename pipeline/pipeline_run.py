@@ -13,14 +13,16 @@ __all__ = ["run_pipeline"]
 
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
-                 quiet: bool = False) -> list[str]:
+                 colmap_image_scale: float = 0.5, quiet: bool = False) -> list[str]:
     """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab.
 
     Returns summary lines. A stage that fails on its input (BadInput) stops the run: later
     stages would only consume a missing artifact.
     """
     from .stages.capture import run_capture
-    from .stages.poses import run_poses
+    from recon.poses import ColmapConfig
+
+    from .stages.poses import PosesConfig, run_poses
     from .stages.reference import run_reference
     from .stages.slab import run_slab
 
@@ -43,7 +45,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
     for method in methods:
         out = stage_dir(name, f"poses/{method}", root)
         try:
-            m = run_poses(cap, method, out, quiet=quiet)
+            m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet)
         except BadInput as exc:  # a failed estimate is a finding, recorded in its metrics.json
             lines.append(f"poses      {method}: failed: {exc}")
             continue
