@@ -7,22 +7,33 @@ A slab set in a folder::
     <name>.radiance.npy        (Nv, Nu, Nt, Ns, 3) float32 linear RGB (see :mod:`render.slab`)
     <name>.depth.npy           (Nv, Nu, Nt, Ns) float32 distance from the uv plane, 0 = empty (optional)
 
+or, for a vector-quantized slab (:class:`render.slab.VQRadiance`; ``radiance`` is null and
+``vq`` names the files)::
+
+    <name>.codes.npy.xz        (Tv, Tu, Tt, Ts) uint16 codewords, a .npy stream compressed by LZMA
+                               (the paper's lossless stage; loaded into memory, ~1/6 of the raw codes)
+    codebook.npy               (K, 2, 2, 2, 2, 3) float16 tiles, shared by the slabs that share it
+                               (float32 in memory; encoders round to float16 first)
+
 Arrays are plain NumPy ``.npy`` files so ``np.load(mmap_mode="r")`` maps them without reading.
 Large slabs are filled in place: :func:`create_slab_arrays` opens writable memmaps. Every
 writer is atomic per file (:func:`render.image_io.atomic_path`) and refuses non-finite values.
 """
 from __future__ import annotations
 
+import io
 import json
+import lzma
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from .image_io import atomic_path
-from .slab import LightSlab, SlabGeometry
+from .slab import LightSlab, SlabGeometry, VQRadiance
 
-__all__ = ["SLABS_JSON", "SLABS_FORMAT", "create_slab_arrays", "write_slab_index", "save_slabs", "load_slabs"]
+__all__ = ["SLABS_JSON", "SLABS_FORMAT", "create_slab_arrays", "write_slab_index", "save_slabs", "load_slabs",
+           "slab_file_bytes"]
 
 SLABS_JSON = "slabs.json"
 SLABS_FORMAT = "lumigraph.slabs/1"
@@ -33,6 +44,8 @@ _CONVENTION = {
     "samples": "sample i of N sits at (i + 0.5) / N (cell centres)",
     "radiance": "(Nv, Nu, Nt, Ns, 3) float32 linear RGB",
     "depth": "(Nv, Nu, Nt, Ns) float32 distance along forward from the uv plane to the first surface, 0 = empty",
+    "vq": "radiance[iv, iu, it, is] = codebook[codes[iv // 2, iu // 2, it // 2, is // 2], iv % 2, iu % 2, it % 2, is % 2]; "
+          "codes LZMA-compressed .npy, codebook (K, 2, 2, 2, 2, 3) float16",
 }
 
 
@@ -59,6 +72,21 @@ def create_slab_arrays(folder, geom: SlabGeometry, with_depth: bool = True
     return rad, depth
 
 
+def _codebook_names(slabs: Sequence[LightSlab]) -> list[str | None]:
+    """File name of each VQ slab's codebook: ``codebook.npy`` for the first codebook (and every
+    slab sharing its array), ``<name>.codebook.npy`` for any other; None for plain slabs."""
+    first, names = None, []
+    for s in slabs:
+        if not isinstance(s.radiance, VQRadiance):
+            names.append(None)
+            continue
+        cb = s.radiance.codebook
+        if first is None:
+            first = cb
+        names.append("codebook.npy" if cb is first or np.shares_memory(cb, first) else f"{s.geometry.name}.codebook.npy")
+    return names
+
+
 def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> Path:
     """Write ``slabs.json`` for slabs whose arrays already are in ``folder`` (flushed here).
 
@@ -69,19 +97,29 @@ def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> 
     names = [s.geometry.name for s in slabs]
     if len(set(names)) != len(names):
         raise ValueError(f"slab names must be unique, got {names}")
-    for s in slabs:
+    for s, cb_name in zip(slabs, _codebook_names(slabs)):
         rad_name, depth_name = _names(s.geometry)
-        for arr, fname in ((s.radiance, rad_name), (s.depth, depth_name)):
+        vq = None
+        if isinstance(s.radiance, VQRadiance):
+            vq = {"codes": f"{s.geometry.name}.codes.npy.xz", "codebook": cb_name}
+            arrays = ((s.radiance.codebook, cb_name), (s.depth, depth_name))
+            files = [vq["codes"], cb_name]
+        else:
+            arrays = ((s.radiance, rad_name), (s.depth, depth_name))
+            files = [rad_name]
+        for arr, fname in arrays:
             if arr is None:
                 continue
             if isinstance(arr, np.memmap):
                 arr.flush()
             if check and not np.all(np.isfinite(arr)):
                 raise ValueError(f"{folder / fname}: refusing to write non-finite values")
+            files.append(fname)
+        for fname in files:
             if not (folder / fname).is_file():
                 raise ValueError(f"{folder / fname}: array file missing (use create_slab_arrays or save_slabs)")
-        entries.append({**s.geometry.to_dict(), "focal_depth": s.focal_depth, "radiance": rad_name,
-                        "depth": None if s.depth is None else depth_name})
+        entries.append({**s.geometry.to_dict(), "focal_depth": s.focal_depth, "radiance": None if vq else rad_name,
+                        "depth": None if s.depth is None else depth_name, **({"vq": vq} if vq else {})})
     doc = {"format": SLABS_FORMAT, "convention": _CONVENTION, "slabs": entries}
     out = folder / SLABS_JSON
     with atomic_path(out) as tmp:
@@ -89,20 +127,51 @@ def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> 
     return out
 
 
+def _save_npy(path: Path, arr: np.ndarray, dtype) -> None:
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{path}: refusing to write non-finite values")
+    with atomic_path(path) as tmp:
+        np.save(tmp, np.ascontiguousarray(arr, dtype=dtype))
+
+
 def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
-    """Write in-memory slabs (arrays and index) to ``folder``; returns the index path."""
+    """Write in-memory slabs (arrays and index) to ``folder``; returns the index path.
+
+    Vector-quantized slabs are written as LZMA-compressed codes and a float16 codebook (refused
+    if the codebook does not round-trip through float16 exactly)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    for s in slabs:
+    written = set()
+    for s, cb_name in zip(slabs, _codebook_names(slabs)):
         rad_name, depth_name = _names(s.geometry)
-        for arr, fname in ((s.radiance, rad_name), (s.depth, depth_name)):
-            if arr is None:
-                continue
-            if not np.all(np.isfinite(arr)):
-                raise ValueError(f"{folder / fname}: refusing to write non-finite values")
-            with atomic_path(folder / fname) as tmp:
-                np.save(tmp, np.ascontiguousarray(arr, dtype=np.float32))
+        if isinstance(s.radiance, VQRadiance):
+            cb = s.radiance.codebook
+            if cb_name not in written:
+                if not np.array_equal(cb.astype(np.float16).astype(np.float32), cb):
+                    raise ValueError(f"{folder / cb_name}: codebook values are not float16 (round them before encoding)")
+                _save_npy(folder / cb_name, cb, np.float16)
+                written.add(cb_name)
+            buf = io.BytesIO()
+            np.save(buf, np.ascontiguousarray(s.radiance.codes))
+            with atomic_path(folder / f"{s.geometry.name}.codes.npy.xz") as tmp:
+                Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=6))
+        else:
+            _save_npy(folder / rad_name, s.radiance, np.float32)
+        if s.depth is not None:
+            _save_npy(folder / depth_name, s.depth, np.float32)
     return write_slab_index(folder, slabs, check=False)
+
+
+def slab_file_bytes(folder) -> dict[str, int]:
+    """Bytes on disk of a slab set's files by kind: radiance (float32 arrays), codes, codebook, depth."""
+    folder = Path(folder)
+    out = {"radiance": 0, "codes": 0, "codebook": 0, "depth": 0}
+    for p in folder.iterdir():
+        for kind, suffix in (("radiance", ".radiance.npy"), ("codes", ".codes.npy.xz"), ("codebook", "codebook.npy"),
+                             ("depth", ".depth.npy")):
+            if p.name.endswith(suffix):
+                out[kind] += p.stat().st_size
+    return out
 
 
 def load_slabs(folder, mmap: bool = True) -> list[LightSlab]:
@@ -120,7 +189,7 @@ def load_slabs(folder, mmap: bool = True) -> list[LightSlab]:
         raise ValueError(f"{index}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
     if doc.get("format") != SLABS_FORMAT or not isinstance(doc.get("slabs"), list) or not doc["slabs"]:
         raise ValueError(f"{index}: not a {SLABS_FORMAT} slab set")
-    slabs = []
+    slabs, codebooks = [], {}
     for i, e in enumerate(doc["slabs"]):
         try:
             geom = SlabGeometry.from_dict(e)
@@ -133,7 +202,31 @@ def load_slabs(folder, mmap: bool = True) -> list[LightSlab]:
                 if not path.is_file():
                     raise ValueError(f"{path}: missing slab array")
                 arrays.append(np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False))
+            if arrays[0] is None:
+                arrays[0] = _load_vq(folder, e["vq"], geom, codebooks)
             slabs.append(LightSlab(geom, arrays[0], arrays[1], e.get("focal_depth")))
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{index}: slab {i} malformed ({exc})") from None
     return slabs
+
+
+def _load_vq(folder: Path, vq: dict, geom: SlabGeometry, codebooks: dict) -> VQRadiance:
+    """A VQ slab's codes (decompressed into memory) and its codebook (float32, shared by name)."""
+    path = folder / vq["codes"]
+    cb_path = folder / vq["codebook"]
+    for p in (path, cb_path):
+        if not p.is_file():
+            raise ValueError(f"{p}: missing slab array")
+    try:
+        codes = np.load(io.BytesIO(lzma.decompress(path.read_bytes())), allow_pickle=False)
+    except (lzma.LZMAError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable codes ({type(exc).__name__})") from None
+    if vq["codebook"] not in codebooks:
+        cb = np.load(cb_path, allow_pickle=False)
+        if cb.dtype != np.float16 or not np.all(np.isfinite(cb)):
+            raise ValueError(f"{cb_path}: codebook must be finite float16")
+        codebooks[vq["codebook"]] = cb.astype(np.float32)
+    try:
+        return VQRadiance(codes, codebooks[vq["codebook"]], geom.array_shape)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
