@@ -4,7 +4,8 @@ Figures (bench/results/pathtracer.json), all measured in the same run (shared, n
 medians and ratios matter, not absolute numbers):
 
 * bare embreex first-hit rays/s on the Cornell box (jittered camera rays, float32 arrays
-  prepared beforehand, split over the same number of threads as the renderer);
+  prepared beforehand, split over the same number of threads as the renderer), timed in
+  rounds interleaved with the renders below (same machine load), and the load average;
 * ``path`` and ``direct`` paths/s and rays/s (camera, extension and shadow rays) and their
   ratio to bare Embree (goal: the whole path tracer at >= 0.5 of bare Embree's rays/s);
 * ``direct`` vs ``path`` time on a one-bounce scene (one convex object under an area light);
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import importlib.util
+import os
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -28,9 +30,10 @@ import trimesh
 import embreex.mesh_construction as emesh
 import embreex.rtcore_scene as escene
 
-from bench.common import RESULTS_DIR, median_time, write_result
+from bench.common import RESULTS_DIR, write_result
 from render.camera import Camera, Intrinsics
 from render.metrics import rmse
+from render.film import RenderResult
 from render.pathtracer import RenderSettings, prepare, refine, render
 from render.poses import look_at
 from render.scene import Emissive, Lambertian, Scene, SceneObject
@@ -47,9 +50,9 @@ def _cornell_module():
     return mod
 
 
-def bare_embree_rays_per_s(scene: Scene, camera: Camera, passes: int, threads: int) -> tuple[float, int, float]:
-    """First-hit rays/s of embreex alone: one triangle soup, prebuilt float32 rays, N threads.
-    Returns (rays per wall second, rays, rays per CPU second)."""
+def bare_embree_runner(scene: Scene, camera: Camera, passes: int, threads: int):
+    """Bare embreex first-hit queries: one triangle soup, prebuilt float32 camera rays split over
+    ``threads`` threads. Returns (run() -> None, rays per run, closer)."""
     tris = np.concatenate([np.asarray(o.mesh.vertices, np.float32)[np.asarray(o.mesh.faces)] for o in scene.objects])
     es = escene.EmbreeScene()
     emesh.TriangleMesh(es, np.ascontiguousarray(tris))
@@ -62,14 +65,36 @@ def bare_embree_rays_per_s(scene: Scene, camera: Camera, passes: int, threads: i
     o, d = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
     bounds = np.linspace(0, len(o), threads + 1).astype(int)
     chunks = [(o[a:b], d[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
-    cpu = []
-    with ThreadPoolExecutor(threads) as ex:
-        def run():
-            c0 = time.process_time()
-            list(ex.map(lambda c: es.run(c[0], c[1], output=True), chunks))
-            cpu.append(time.process_time() - c0)
-        t, _ = median_time(run, repeats=5)
-    return len(o) / t, len(o), len(o) / float(np.min(cpu[1:]))
+    ex = ThreadPoolExecutor(threads)
+
+    def run():
+        list(ex.map(lambda c: es.run(c[0], c[1], output=True), chunks))
+
+    return run, len(o), ex.shutdown
+
+
+def interleaved(runs: dict, repeats: int) -> dict:
+    """Time each of ``runs`` (name -> fn) once per round, round-robin, after one warm-up round:
+    the bare baseline and the renders see the same machine load. Returns name -> (median wall
+    seconds, minimum CPU seconds over all threads)."""
+    wall = {k: [] for k in runs}
+    cpu = {k: [] for k in runs}
+    for r in range(repeats + 1):
+        for k, fn in runs.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            if r:
+                wall[k].append(time.perf_counter() - t0)
+                cpu[k].append(time.process_time() - c0)
+    return {k: (float(np.median(wall[k])), float(np.min(cpu[k]))) for k in runs}
+
+
+def _figures(res: RenderResult, wall: float, cpu: float) -> dict:
+    st = res.stats
+    return {"seconds": wall, "cpu_seconds": cpu, "paths": st["paths"], "rays": st["rays"],
+            "paths_per_s": st["paths"] / wall, "rays_per_s": st["rays"] / wall,
+            "paths_per_cpu_s": st["paths"] / cpu, "rays_per_cpu_s": st["rays"] / cpu,
+            "rays_per_path": st["rays"] / st["paths"]}
 
 
 def one_bounce_scene() -> tuple[Scene, Camera]:
@@ -88,20 +113,12 @@ def _throughput(scene, camera, settings, effects=None, prepared=None, repeats=5)
     """Median wall time and minimum CPU time over the repeats (all threads; the minimum is the
     least disturbed by other jobs on a shared machine)."""
     res = {}
-    cpu = []
 
     def run():
-        c0 = time.process_time()
         res["r"] = render(scene, camera, settings, effects=effects, prepared=prepared)
-        cpu.append(time.process_time() - c0)
 
-    t, _ = median_time(run, repeats=repeats, warmup=1)
-    c = float(np.min(cpu[1:]))  # the first call is the warm-up
-    st = res["r"].stats
-    return {"seconds": t, "cpu_seconds": c, "paths": st["paths"], "rays": st["rays"],
-            "paths_per_s": st["paths"] / t, "rays_per_s": st["rays"] / t,
-            "paths_per_cpu_s": st["paths"] / c, "rays_per_cpu_s": st["rays"] / c,
-            "rays_per_path": st["rays"] / st["paths"]}
+    (t, c), = interleaved({"r": run}, repeats).values()
+    return _figures(res["r"], t, c)
 
 
 def rmse_time_curve(scene, camera, prepared, ref_spp: int, max_spp: int, seed: int = 77) -> tuple[list[dict], dict]:
@@ -181,14 +198,32 @@ def main(argv: list[str] | None = None) -> dict:
     spp = 1 if quick else 4
     figures: dict = {"scene": "cornell", "resolution": [256, 256], "threads": THREADS, "spp_per_timing": spp}
 
-    bare, n_bare, bare_cpu = bare_embree_rays_per_s(scene, cam, passes=spp, threads=THREADS)
-    figures["bare_embree"] = {"first_hit_rays_per_s": bare, "first_hit_rays_per_cpu_s": bare_cpu, "rays": n_bare}
-    print(f"bare embreex first hit: {bare / 1e6:.2f} M rays/s ({bare_cpu / 1e6:.2f} M per CPU second)", flush=True)
+    repeats = 3 if quick else 9
+    figures["load_average_start"] = os.getloadavg()
+    bare_run, n_bare, bare_close = bare_embree_runner(scene, cam, passes=spp, threads=THREADS)
+    res = {}
+    settings = {"path": (RenderSettings(integrator="path", spp=spp), None),
+                "direct": (RenderSettings(integrator="direct", spp=spp), {"direct", "soft_shadows"})}
 
-    figures["path"] = _throughput(scene, cam, RenderSettings(integrator="path", spp=spp), prepared=ps)
-    figures["direct"] = _throughput(scene, cam, RenderSettings(integrator="direct", spp=spp),
-                                    effects={"direct", "soft_shadows"}, prepared=ps)
+    def renderer(k):
+        def run():
+            res[k] = render(scene, cam, settings[k][0], effects=settings[k][1], prepared=ps)
+        return run
+
+    timing = interleaved({"bare": bare_run, "path": renderer("path"), "direct": renderer("direct")}, repeats)
+    bare_close()
+    figures["load_average_end"] = os.getloadavg()
+    figures["repeats"] = repeats
+    figures["embree_called_directly"] = ps.accel.direct is not None
+    bt, bc = timing["bare"]
+    bare, bare_cpu = n_bare / bt, n_bare / bc
+    figures["bare_embree"] = {"first_hit_rays_per_s": bare, "first_hit_rays_per_cpu_s": bare_cpu, "rays": n_bare,
+                              "seconds": bt, "cpu_seconds": bc}
+    print(f"load average {figures['load_average_start'][0]:.1f} -> {figures['load_average_end'][0]:.1f} "
+          f"(2 cores); medians of {repeats} interleaved rounds", flush=True)
+    print(f"bare embreex first hit: {bare / 1e6:.2f} M rays/s ({bare_cpu / 1e6:.2f} M per CPU second)", flush=True)
     for k in ("path", "direct"):
+        figures[k] = _figures(res[k], *timing[k])
         figures[k]["rays_per_s_over_bare_embree"] = figures[k]["rays_per_s"] / bare
         figures[k]["rays_per_cpu_s_over_bare_embree"] = figures[k]["rays_per_cpu_s"] / bare_cpu
         print(f"{k:6s}: {figures[k]['paths_per_s'] / 1e3:.0f} k paths/s, {figures[k]['rays_per_s'] / 1e6:.2f} M rays/s "

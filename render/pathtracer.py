@@ -5,8 +5,16 @@ Every model in lumigraph is judged against this renderer. It estimates the measu
     I_pixel = 1/|pixel| \\int_pixel L(x_cam, w(x)) dx            (box filter)
 
 with L expanded recursively by the rendering equation. Paths are traced *wavefront*: an array
-of live paths, each bounce one Embree call for all of them, shading vectorized over the hits,
-finished paths compacted away. There is no Python loop per ray or per pixel.
+of live paths, each bounce one Embree query for all of them, one compiled shading pass over the
+hits (:mod:`render.pt_kernels`, numba; it writes the next rays and the shadow rays as the
+float32 arrays Embree reads and compacts finished paths away), one occlusion query for all
+shadow rays. Embree is called from compiled code through the library embreex ships
+(:mod:`render.embree_direct`), or through embreex's batch API when that library is not found.
+There is no Python loop per ray or per pixel; the kernels release the GIL, so the ``threads``
+render threads (one batch of ``batch_paths`` camera samples each) trace and shade in parallel.
+The numpy BSDFs (:mod:`render.bsdf`), light sampling (:mod:`render.lights`) and warps
+(:mod:`render.sampling`) remain the reference interfaces for other integrators; the kernels
+implement the same formulas and tests compare them.
 
 Integrators (Heckbert's notation; see render.effects):
 
@@ -74,7 +82,9 @@ INTEGRATOR_EFFECTS = {
     "path": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
 }
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
-_DIMS_PER_BOUNCE = 8  # random dimensions per bounce: light pick, light uv (2), lobe, bsdf uv (2), roulette, spare
+#: random dimensions per bounce (render.pt_kernels.shade_bounce): light pick, light uv (2), lobe, bsdf uv (2),
+#: roulette, spare; camera jitter takes dimensions 0 and 1
+_DIMS_PER_BOUNCE = 8
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,8 @@ class RenderSettings:
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
     (next-event estimation only) or "bsdf" (BSDF sampling only for area sources; delta lights
     are always sampled). heuristic: "power" or "balance" (Veach and Guibas).
-    threads: worker threads. batch_paths: camera samples per wavefront batch.
+    threads: worker threads. batch_paths: camera samples per wavefront batch (results do not
+    depend on threads; batches change only the float64 summation order of the film).
     """
 
     integrator: str = "auto"
