@@ -97,8 +97,8 @@ class RenderSettings:
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
     (next-event estimation only) or "bsdf" (BSDF sampling only for area sources; delta lights
     are always sampled). heuristic: "power" or "balance" (Veach and Guibas).
-    threads: worker threads. batch_paths: camera samples per wavefront batch (results do not
-    depend on threads; batches change only the float64 summation order of the film).
+    threads: worker threads. batch_paths: camera samples per wavefront batch. Neither changes
+    a render's bytes (samples are summed per pixel in sample order).
     """
 
     integrator: str = "auto"

@@ -104,3 +104,6 @@ def test_renders_do_not_depend_on_threads():
     two = render(sc, cam, st, prepared=ps)
     assert np.array_equal(one.film.s1, two.film.s1) and np.array_equal(one.film.s2, two.film.s2)
     assert np.array_equal(one.mean, two.mean) and np.array_equal(one.variance, two.variance)
+    # samples are summed per pixel in sample order, so the batch size does not matter either
+    big = render(sc, cam, RenderSettings(integrator="path", spp=16, seed=4), prepared=ps)
+    assert np.array_equal(big.film.s1, one.film.s1) and np.array_equal(big.film.s2, one.film.s2)
