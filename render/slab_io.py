@@ -12,6 +12,8 @@ or, for a vector-quantized slab (:class:`render.slab.VQRadiance`; ``radiance`` i
 
     <name>.codes.npy.xz        (Tv, Tu, Tt, Ts) uint16 codewords, a .npy stream compressed by LZMA
                                (the paper's lossless stage; loaded into memory, ~1/6 of the raw codes)
+    <name>.depth.npy.xz        the depth as float16, LZMA-compressed (when the encoder rounded it to
+                               float16), else <name>.depth.npy as above
     codebook.npy               (K, 2, 2, 2, 2, 3) float16 tiles, shared by the slabs that share it
                                (float32 in memory; encoders round to float16 first)
 
@@ -49,10 +51,18 @@ _CONVENTION = {
 }
 
 
-def _names(geom: SlabGeometry) -> tuple[str, str]:
+def _names(geom: SlabGeometry, slab: LightSlab | None = None) -> tuple[str, str]:
+    """File names of a slab's radiance and depth arrays; a compressed slab whose depth is exactly
+    float16 keeps it as an LZMA-compressed float16 .npy stream."""
     if not geom.name or any(ch in geom.name for ch in "/\\ ") or geom.name.startswith("."):
         raise ValueError(f"slab name {geom.name!r} cannot be a file name")
+    if slab is not None and slab.compressed and slab.depth is not None and _is_float16(slab.depth):
+        return f"{geom.name}.radiance.npy", f"{geom.name}.depth.npy.xz"
     return f"{geom.name}.radiance.npy", f"{geom.name}.depth.npy"
+
+
+def _is_float16(a: np.ndarray) -> bool:
+    return bool(np.array_equal(np.asarray(a).astype(np.float16).astype(np.float32), a))
 
 
 def create_slab_arrays(folder, geom: SlabGeometry, with_depth: bool = True
@@ -98,7 +108,7 @@ def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> 
     if len(set(names)) != len(names):
         raise ValueError(f"slab names must be unique, got {names}")
     for s, cb_name in zip(slabs, _codebook_names(slabs)):
-        rad_name, depth_name = _names(s.geometry)
+        rad_name, depth_name = _names(s.geometry, s)
         vq = None
         if isinstance(s.radiance, VQRadiance):
             vq = {"codes": f"{s.geometry.name}.codes.npy.xz", "codebook": cb_name}
@@ -143,7 +153,7 @@ def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     written = set()
     for s, cb_name in zip(slabs, _codebook_names(slabs)):
-        rad_name, depth_name = _names(s.geometry)
+        rad_name, depth_name = _names(s.geometry, s)
         if isinstance(s.radiance, VQRadiance):
             cb = s.radiance.codebook
             if cb_name not in written:
@@ -158,7 +168,15 @@ def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
         else:
             _save_npy(folder / rad_name, s.radiance, np.float32)
         if s.depth is not None:
-            _save_npy(folder / depth_name, s.depth, np.float32)
+            if depth_name.endswith(".xz"):
+                if not np.all(np.isfinite(s.depth)):
+                    raise ValueError(f"{folder / depth_name}: refusing to write non-finite values")
+                buf = io.BytesIO()
+                np.save(buf, np.ascontiguousarray(s.depth, dtype=np.float16))
+                with atomic_path(folder / depth_name) as tmp:
+                    Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=6))
+            else:
+                _save_npy(folder / depth_name, s.depth, np.float32)
     return write_slab_index(folder, slabs, check=False)
 
 
@@ -168,7 +186,7 @@ def slab_file_bytes(folder) -> dict[str, int]:
     out = {"radiance": 0, "codes": 0, "codebook": 0, "depth": 0}
     for p in folder.iterdir():
         for kind, suffix in (("radiance", ".radiance.npy"), ("codes", ".codes.npy.xz"), ("codebook", "codebook.npy"),
-                             ("depth", ".depth.npy")):
+                             ("depth", ".depth.npy"), ("depth", ".depth.npy.xz")):
             if p.name.endswith(suffix):
                 out[kind] += p.stat().st_size
     return out
@@ -201,7 +219,10 @@ def load_slabs(folder, mmap: bool = True) -> list[LightSlab]:
                 path = folder / e[key]
                 if not path.is_file():
                     raise ValueError(f"{path}: missing slab array")
-                arrays.append(np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False))
+                if path.name.endswith(".xz"):
+                    arrays.append(_load_xz(path).astype(np.float32))
+                else:
+                    arrays.append(np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False))
             if arrays[0] is None:
                 arrays[0] = _load_vq(folder, e["vq"], geom, codebooks)
             slabs.append(LightSlab(geom, arrays[0], arrays[1], e.get("focal_depth")))
@@ -217,10 +238,7 @@ def _load_vq(folder: Path, vq: dict, geom: SlabGeometry, codebooks: dict) -> VQR
     for p in (path, cb_path):
         if not p.is_file():
             raise ValueError(f"{p}: missing slab array")
-    try:
-        codes = np.load(io.BytesIO(lzma.decompress(path.read_bytes())), allow_pickle=False)
-    except (lzma.LZMAError, ValueError, EOFError) as exc:
-        raise ValueError(f"{path}: unreadable codes ({type(exc).__name__})") from None
+    codes = _load_xz(path)
     if vq["codebook"] not in codebooks:
         cb = np.load(cb_path, allow_pickle=False)
         if cb.dtype != np.float16 or not np.all(np.isfinite(cb)):
@@ -230,3 +248,11 @@ def _load_vq(folder: Path, vq: dict, geom: SlabGeometry, codebooks: dict) -> VQR
         return VQRadiance(codes, codebooks[vq["codebook"]], geom.array_shape)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+
+
+def _load_xz(path: Path) -> np.ndarray:
+    """An LZMA-compressed .npy stream, decompressed into memory."""
+    try:
+        return np.load(io.BytesIO(lzma.decompress(path.read_bytes())), allow_pickle=False)
+    except (lzma.LZMAError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable compressed array ({type(exc).__name__})") from None

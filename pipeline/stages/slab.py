@@ -6,7 +6,10 @@ Layout (DESIGN.md)::
     slab/renders/<view>.exr, <view>.png    held-out views in the primary mode (capture's names)
     slab/errors/<view>.png, <view>.exr     |render - reference| (PNG: mean over RGB, x8, grey)
     slab/modes/<mode>/<view>.png           previews of every interpolation mode (Fig. 13)
-    slab/metrics.json                      PSNR / SSIM per view and per mode, coverage, sizes
+    slab/compressed/                       the slab set vector-quantized (render.slab_io; when
+                                           ``compress``), and renders_vq/<view>.png from it
+    slab/metrics.json                      PSNR / SSIM per view and per mode, coverage, sizes,
+                                           compression ratio and its PSNR cost
     slab/manifest.json
 
 Split between layers: this stage reads the capture (images, depth, cameras: the layout is
@@ -30,15 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, acquire_direct, content_bounds,
-                        rebin_slabs, slab_layout)
+from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct,
+                        compress_slabs, content_bounds, rebin_slabs, slab_layout)
 from render.camera import Camera
 from render.camera_io import read_cameras_json
 from render.color import to_srgb8
 from render.image_io import read_exr, write_exr, write_png, write_preview
 from render.metrics import psnr, ssim
 from render.slab import MODES, LightSlab, render_view
-from render.slab_io import load_slabs
+from render.slab_io import load_slabs, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, write_json
 from ..progress import progress_bar
@@ -52,7 +55,8 @@ METHODS = ("direct", "rebin")
 class SlabStageConfig:
     """method: ``direct`` or ``rebin``; mode: interpolation of ``renders/``; min_radiance: capture
     pixels brighter than this (max over RGB, linear) bound the content the slabs must cover
-    (darker surfaces such as black velvet are left to the background); seed: path tracer seed."""
+    (darker surfaces such as black velvet are left to the background); seed: path tracer seed;
+    compress: also vector-quantize the slabs (``vq``) and score the held-out views from them."""
 
     method: str = "direct"
     mode: str = "depth"
@@ -62,6 +66,8 @@ class SlabStageConfig:
     min_radiance: float = 0.05
     spp: int = 64
     seed: int = 0
+    compress: bool = True
+    vq: VQConfig = field(default_factory=VQConfig)
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -281,6 +287,32 @@ def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: li
     return metrics, images
 
 
+def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray], bg: np.ndarray, by_mode: dict,
+              config: SlabStageConfig, tmp: Path, quiet: bool) -> dict:
+    """Vector-quantize the slabs into ``tmp/compressed``, render the held-out views from them (the
+    primary mode and quadrilinear, through the codebook) and return sizes, ratios and PSNR cost."""
+    t0 = time.perf_counter()
+    with progress_bar(quiet) as bar:
+        task = bar.add_task("slab: compress (VQ)", total=len(slabs), info="")
+        vq, stats = compress_slabs(slabs, config.vq, lambda n: bar.advance(task, n))
+    save_slabs(tmp / "compressed", vq)
+    compress_s = time.perf_counter() - t0
+    vq = load_slabs(tmp / "compressed")
+    modes = tuple(dict.fromkeys((config.mode, "quadrilinear")))
+    m_vq, images = evaluate_views(vq, test, refs, modes, bg)
+    for cam in test:
+        write_preview(tmp / "renders_vq" / f"{cam.name}.png", images[config.mode][cam.name])
+    files = slab_file_bytes(tmp / "compressed")
+    stored = files["codes"] + files["codebook"]
+    return {**stats.to_dict(), "files": files, "compress_s": round(compress_s, 2),
+            "ratio_vs_float32": stats.float32_bytes / stored,      # radiance: our float32 arrays -> stored VQ
+            "ratio_vs_rgb8": 3 * stats.rays / stored,               # the paper's baseline: 24-bit RGB per ray
+            "lossless_ratio": stats.codes_bytes / max(files["codes"], 1),  # the LZMA stage on the indices
+            "psnr": {m: m_vq[m]["psnr_mean"] for m in modes}, "ssim": {m: m_vq[m]["ssim_mean"] for m in modes},
+            "psnr_cost": {m: by_mode[m]["psnr_mean"] - m_vq[m]["psnr_mean"] for m in modes},
+            "per_view": m_vq[config.mode]["per_view"]}
+
+
 def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabStageConfig = SlabStageConfig(),
              reference_dir: Path | None = None, quiet: bool = False) -> dict:
     """Build slabs from ``capture_dir`` into ``out`` (atomically), render the held-out views in
@@ -297,7 +329,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
             for c in test]
     params = {"method": config.method, "mode": config.mode, "layout": asdict(config.layout),
               "direct": asdict(config.direct), "rebin": asdict(config.rebin), "min_radiance": config.min_radiance,
-              "reference": ref_kind}
+              "compress": config.compress, "vq": asdict(config.vq), "reference": ref_kind}
     manifest = Manifest("slab", params=params)
     manifest.add_input(capture_dir / "cameras.json")
     if poses_dir is not None:
@@ -326,19 +358,22 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
             for mode in MODES:
                 write_preview(tmp / "modes" / mode / f"{cam.name}.png", images[mode][cam.name])
         primary = by_mode[config.mode]
+        compression = _compress(slabs, test, refs, bg, by_mode, config, tmp, quiet) if config.compress else None
         metrics = {"mode": config.mode, "method": config.method, "reference": ref_kind,
                    "per_view": primary["per_view"], "psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
-                   "modes": by_mode, "build": info}
+                   "modes": by_mode, "build": info, **({"compression": compression} if compression else {})}
         write_json(tmp / "metrics.json", metrics)
         manifest.metrics = {"psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
                             "mode": config.mode, "slab_bytes": info["bytes"], "build_s": info["build_s"],
                             **({"coverage": info["coverage"]} if "coverage" in info else {}),
-                            **{f"psnr_{m}": by_mode[m]["psnr_mean"] for m in MODES}}
+                            **{f"psnr_{m}": by_mode[m]["psnr_mean"] for m in MODES},
+                            **({"vq_ratio_vs_float32": compression["ratio_vs_float32"],
+                                "vq_psnr_cost": compression["psnr_cost"][config.mode]} if compression else {})}
         result = manifest.write(tmp)
     return result
 
 
-if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph slab`
+if __name__ == "__main__":  # layout and compression options until the CLI has them
     import argparse
 
     ap = argparse.ArgumentParser()
@@ -349,7 +384,10 @@ if __name__ == "__main__":  # temporary entry point until the lead wires `lumigr
     ap.add_argument("--uv-res", type=int, default=16)
     ap.add_argument("--st-res", type=int, default=192)
     ap.add_argument("--reference", type=Path)
+    ap.add_argument("--layout", default="ring", choices=["ring", "box"])
+    ap.add_argument("--no-compress", action="store_true")
     a = ap.parse_args()
-    cfg = SlabStageConfig(method=a.method, layout=LayoutConfig(uv_res=a.uv_res, st_res=a.st_res))
+    cfg = SlabStageConfig(method=a.method, layout=LayoutConfig(kind=a.layout, uv_res=a.uv_res, st_res=a.st_res),
+                          compress=not a.no_compress)
     m = run_slab(a.capture_dir, a.poses, a.out, cfg, a.reference)
     print({k: v for k, v in m["metrics"].items()})

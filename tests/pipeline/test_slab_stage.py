@@ -51,13 +51,20 @@ def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
     assert len(slabs) >= 3 and isinstance(slabs[0].radiance, np.memmap)
     if method == "rebin":
         assert 0.5 < metrics["build"]["coverage"] <= 1.0
+    # compression: a VQ slab set beside the float one, scored on the same views
+    vq = load_slabs(out / "compressed")
+    assert [s.geometry.name for s in vq] == [s.geometry.name for s in slabs] and all(s.compressed for s in vq)
+    c = metrics["compression"]
+    assert c["ratio_vs_float32"] > 1 and c["files"]["radiance"] == 0
+    assert set(c["psnr_cost"]) == {"depth", "quadrilinear"} and all(np.isfinite(v) for v in c["psnr_cost"].values())
+    assert sorted(p.stem for p in (out / "renders_vq").glob("*.png")) == tests
 
 
 def test_slab_stage_prefers_a_reference_folder(capture, tmp_path):
     ref = tmp_path / "reference"
     shutil.copytree(capture / "linear", ref / "linear")
     out = tmp_path / "slab"
-    run_slab(capture, None, out, SlabStageConfig(layout=SMALL), reference_dir=ref, quiet=True)
+    run_slab(capture, None, out, SlabStageConfig(layout=SMALL, compress=False), reference_dir=ref, quiet=True)
     assert json.loads((out / "metrics.json").read_text())["reference"] == "reference"
 
 
