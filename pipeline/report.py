@@ -321,6 +321,9 @@ def _glance(models: dict, best: dict | None, ref: dict, front: list[str]) -> str
         lines.append(f"The reference ({e(str(ref.get('spp')))} spp, {e(str(ref.get('integrator')))}) limits what can be "
                      f"measured to about {ceil:.1f} dB PSNR (its own noise); the best model's difference is "
                      f"{100 * (b.get('noise_share_mean') or 0):.1f}% reference noise.")
+    black = ref.get("psnr_black_mean")
+    if black is not None:
+        lines.append(f"For scale: an empty (black) image scores {black:.1f} dB against this reference.")
     return '<div class="glance">' + "<br>".join(lines) + "</div>"
 
 
@@ -343,6 +346,8 @@ def _plots_section(models: dict, ref: dict, root: Path, validate_dir: Path) -> s
     parts = []
     ceil = ref.get("psnr_noise_ceiling_mean")
     hl = [(ceil, "reference noise ceiling")] if ceil is not None else []
+    if ref.get("psnr_black_mean") is not None:
+        hl.append((ref["psnr_black_mean"], "empty (black) image"))
     series = [Series(n, [m["end_to_end_s"]], [m["psnr_mean"]], [n], annotate=True)
               for n, m in sorted(models.items()) if m["psnr_mean"] is not None and m["end_to_end_s"] > 0]
     parts.append(svg_plot(series, "end-to-end time (s)", "PSNR at held-out views (dB)",

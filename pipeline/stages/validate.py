@@ -3,6 +3,7 @@
 Layout (DESIGN.md)::
 
     validate/metrics.json                  summary per model + per view (see below), poses, best
+    validate/details.json                  the same with every per-view figure (mse, rmse, noise_mse, ...)
     validate/errors/<model>/<view>.png     |render - reference|, mean over RGB, x ``error_gain``, grey sRGB
     validate/zmaps/<model>/<view>.png      per-pixel Z-score against the reference noise: grey
                                            (darker = smaller) where within noise, red beyond
@@ -30,6 +31,8 @@ independent of the model, E[(model - ref)^2] = (model - truth)^2 + var_ref, so p
   noise explains (near 1: the model is as good as this reference can tell);
 * ``psnr_truth_est`` = 10 log10(1 / (mse - noise_mse)): the PSNR against the noise-free truth,
   estimated (null when mse <= noise_mse, flagged ``within_noise``);
+* ``reference.psnr_black_mean``: what an all-black image scores (mostly dark scenes score well
+  doing nothing: a model's PSNR means something only above this);
 * ``z_within_fraction``: the fraction of pixel channels with z = |model - ref| / sigma_ref at most
   z_crit = Phi^-1(1 - alpha / 2) (two-sided, per-pixel alpha, sigma_ref = sqrt(var_ref) clamped
   below at ``sigma_floor``; the Z-test of REFERENCES.md). A model equal to the truth scores about
@@ -286,6 +289,19 @@ def pose_summary(artifacts_dir: Path) -> dict:
 # ------------------------------------------------------------------------------------- stage
 
 
+#: per-view figures kept in metrics.json (``dvc metrics show`` stays readable); details.json has all
+COMPACT_VIEW_KEYS = ("psnr", "ssim", "psnr_truth_est", "noise_share", "z_within_fraction", "scale")
+
+
+def _compact(metrics: dict) -> dict:
+    out = {**metrics, "models": {}}
+    for n, r in metrics["models"].items():
+        out["models"][n] = {**r, "per_view": {v: {k: m[k] for k in COMPACT_VIEW_KEYS} for v, m in r["per_view"].items()}}
+    out["reference"] = {**metrics["reference"], "per_view": {
+        v: {"psnr_noise_ceiling": m["psnr_noise_ceiling"]} for v, m in metrics["reference"]["per_view"].items()}}
+    return out
+
+
 def _slug(name: str) -> Path:
     return Path(*[_SAFE.sub("_", p) for p in name.split("/")])
 
@@ -342,6 +358,8 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                  "per_view": {v: {"noise_mse": n, "psnr_noise_ceiling": 10 * math.log10(1 / n) if n > 0 else None}
                               for v, n in ref_noise.items()}}
     reference["psnr_noise_ceiling_mean"] = _mean([p["psnr_noise_ceiling"] for p in reference["per_view"].values()])
+    # what an empty (black) image scores: a model must beat this to have rendered anything
+    reference["psnr_black_mean"] = _mean([psnr(np.zeros_like(r), r) for r, _ in refs.values()])
     results, view_rows = {}, []
     with atomic_stage(out) as tmp, progress_bar(quiet) as bar:
         task = bar.add_task("validate", total=len(models) * len(views), info=f"{len(models)} models")
@@ -377,7 +395,8 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                    "best": {"model": best, "psnr_mean": results[best]["psnr_mean"],
                             "ssim_mean": results[best]["ssim_mean"], "end_to_end_s": results[best]["end_to_end_s"]}
                    if best else None}
-        write_json(tmp / "metrics.json", metrics)
+        write_json(tmp / "details.json", metrics)
+        write_json(tmp / "metrics.json", _compact(metrics))
         model_rows = [{"model": n, **{k: v for k, v in r.items() if k != "per_view"}} for n, r in results.items()]
         _write_csv(tmp / "plots" / "models.csv", model_rows,
                    ["model", "stage", "poses", "psnr_mean", "ssim_mean", "psnr_truth_est_mean", "noise_share_mean",
