@@ -267,7 +267,8 @@ class DaskEngine:
             since = [time.monotonic()]
             while pending:
                 try:
-                    done, pending = wait(pending, timeout=self.config.poll_s, return_when="FIRST_COMPLETED")
+                    with client.as_current():  # wait() uses the current client
+                        done, pending = wait(pending, timeout=self.config.poll_s, return_when="FIRST_COMPLETED")
                 except TimeoutError:
                     self._check_workers(since)
                     continue

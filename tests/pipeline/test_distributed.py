@@ -265,3 +265,17 @@ def test_workers_0_is_in_process_and_negative_is_bad_input(tiny, undisturbed, ca
     assert main(["reference", str(path), "--workers", "-1", "--out", str(root / "neg"), "--quiet"]) == 2
     assert "--workers" in capsys.readouterr().err
     assert not (root / "neg").exists()
+
+
+def test_no_worker_left_stops_the_stage_instead_of_hanging(tiny, cluster):
+    """Every worker gone (none restarted): the stage stops after no_workers_timeout_s with a
+    RuntimeError naming the cluster, and leaves no folder."""
+    rig, path, root = tiny
+    cluster.ensure(0)
+    out = root / "no-workers"
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="no worker"):
+        run_reference(rig, path, out, spp=8, views="test", quiet=True,
+                      cluster=ClusterConfig(cluster.address, no_workers_timeout_s=2, poll_s=0.5))
+    assert time.monotonic() - t0 < 30
+    assert not out.exists() and not list(root.glob(".no-workers.partial-*"))
