@@ -405,14 +405,17 @@ def test_vq_slab_set_round_trip(tmp_path):
     shared = np.concatenate([v1.codebook, v2.codebook])
     v2.codes += len(v1.codebook)
     v1.codebook = v2.codebook = shared
-    slabs = [LightSlab(g1, v1, None, 0.9), LightSlab(g2, v2)]
+    depth = np.full(g2.array_shape[:4], 0.875, np.float32)  # float16-exact: stored LZMA float16
+    slabs = [LightSlab(g1, v1, None, 0.9), LightSlab(g2, v2, depth)]
     save_slabs(tmp_path, slabs)
     sizes = slab_file_bytes(tmp_path)
     assert sizes["radiance"] == 0 and sizes["codes"] > 0 and sizes["codebook"] > 0
+    assert (tmp_path / "b.depth.npy.xz").is_file() and not (tmp_path / "b.depth.npy").exists()
     assert sorted(p.name for p in tmp_path.glob("*codebook*")) == ["codebook.npy"]
     back = load_slabs(tmp_path)
     assert back[0].radiance.codebook is back[1].radiance.codebook and back[0].focal_depth == 0.9
     np.testing.assert_array_equal(back[1].radiance.decode(), r2)
+    assert back[1].depth.dtype == np.float32 and np.array_equal(back[1].depth, depth)
     v1.codebook = shared + np.float32(1e-4)  # not representable in float16
     with pytest.raises(ValueError, match="float16"):
         save_slabs(tmp_path / "bad", [LightSlab(g1, v1)])
