@@ -40,7 +40,7 @@ class VQConfig:
     codebook_size: int = 16384
     groups: int = 128
     sample: int = 262144
-    iterations: int = 12
+    iterations: int = 8
     seed: int = 0
 
     def __post_init__(self):
@@ -165,8 +165,8 @@ class TreeCodebook:
     """A two-level codebook: ``coarse`` (G, 48) cell centroids; ``entries`` (K, 48) float32 (values
     exactly representable in float16); ``members`` (G, M) int64 entry indices of each cell, padded
     with -1 (cell g owns entries members[g, :sizes[g]]); ``fixed``: index of an entry that is the
-    set's most frequent exact tile (the background: tiles equal to it are coded without a
-    search), or -1."""
+    set's most frequent constant tile (the background: tiles equal to it are coded exactly and
+    without a search), or -1."""
 
     coarse: torch.Tensor
     entries: torch.Tensor
@@ -194,11 +194,16 @@ class TreeCodebook:
         return codes
 
 
-def _most_frequent(x: np.ndarray) -> tuple[np.ndarray, float]:
-    """The most frequent row of ``x`` (n, d) and its frequency."""
-    rows, counts = np.unique(x, axis=0, return_counts=True)
+def _most_frequent_constant(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """The most frequent constant tile of ``x`` (n, 48) (all 16 rays one colour: the background)
+    and its frequency (0 when no tile is constant)."""
+    rays = x.reshape(len(x), 16, 3)
+    const = np.all(rays == rays[:, :1], axis=(1, 2))
+    if not const.any():
+        return x[0], 0.0
+    colours, counts = np.unique(rays[const, 0], axis=0, return_counts=True)
     i = int(np.argmax(counts))
-    return rows[i], counts[i] / len(x)
+    return np.tile(colours[i], 16).astype(np.float32), counts[i] / len(x)
 
 
 def train_codebook(sample: np.ndarray, config: VQConfig = VQConfig()) -> TreeCodebook:
@@ -207,7 +212,7 @@ def train_codebook(sample: np.ndarray, config: VQConfig = VQConfig()) -> TreeCod
     if len(x) < 2 or not torch.isfinite(x).all():
         raise ValueError("the VQ training sample must hold at least 2 finite tiles")
     gen = torch.Generator().manual_seed(int(config.seed))
-    fixed_tile, freq = _most_frequent(np.asarray(sample, np.float32))
+    fixed_tile, freq = _most_frequent_constant(np.asarray(sample, np.float32))
     fixed = None
     if freq >= 0.01 and np.array_equal(fixed_tile, fixed_tile.astype(np.float16).astype(np.float32)):
         fixed = torch.from_numpy(fixed_tile)
