@@ -1,0 +1,157 @@
+"""The ``nerf`` stage: train a radiance field from a capture and render its held-out views.
+
+Layout (DESIGN.md)::
+
+    nerf/<model>/checkpoint.pt          model + optimizer state (resumable)
+    nerf/<model>/renders/<view>.exr     linear RGB at the capture's resolution; <view>.png preview
+    nerf/<model>/depth/<view>.exr       z-depth (0 where the opacity is below 0.5), same size
+    nerf/<model>/metrics.json           PSNR / SSIM per held-out view, means, training figures
+    nerf/<model>/curve.csv              held-out PSNR against training time
+    nerf/<model>/manifest.json
+
+Metrics are computed at the working scale (the capture area-averaged by ``downsample``, 160x120
+for the default scene), where the model is trained; models that render at full resolution
+(``fast``) also report ``psnr_full`` / ``ssim_full`` at the capture's resolution. The reference is
+``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the
+capture's own held-out images (exact for direct-only scenes rendered by the rasterizer).
+
+While training, checkpoints go to a hidden ``.<model>.resume.pt`` beside the stage folder, so an
+interrupted run resumes with ``resume=True`` and a finished folder never looks half-written.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from recon.nerf.data import NerfInputError, load_data
+from recon.nerf.models import MODELS
+from recon.nerf.train import TrainConfig, evaluate_views, train
+from render.image_io import atomic_path, write_exr, write_preview
+
+from ..artifacts import BadInput, Manifest, atomic_stage, read_manifest, write_json
+from ..progress import progress_bar
+
+__all__ = ["run_nerf", "write_curve_csv", "CURVE_FIELDS"]
+
+CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
+
+
+def write_curve_csv(path: Path, curve: list[dict]) -> None:
+    """curve.csv: one row per held-out evaluation, columns ``CURVE_FIELDS`` (seconds, dB)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=CURVE_FIELDS, lineterminator="\n")
+    w.writeheader()
+    for row in curve:
+        w.writerow({k: row[k] for k in CURVE_FIELDS})
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(buf.getvalue())
+
+
+def _resume_file(out: Path) -> Path:
+    return out.parent / f".{out.name}.resume.pt"
+
+
+def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: float, out: Path,
+             reference_dir: Path | None = None, downsample: int = 4, seed: int = 0, max_steps: int | None = None,
+             resume: bool = False, quiet: bool = False) -> dict:
+    """Train ``model`` for ``minutes`` of training time on ``capture_dir`` (poses from
+    ``poses_dir``/cameras.json when given) and write ``out`` atomically; returns the manifest.
+
+    Bad input (missing capture, images or cameras, unknown model) raises BadInput.
+    """
+    capture_dir = Path(capture_dir)
+    out = Path(out)
+    read_manifest(capture_dir)  # a finished capture stage, else BadInput
+    if model not in MODELS:
+        raise BadInput(f"--model: unknown NeRF model {model!r}; known: {', '.join(sorted(MODELS))}")
+    if not (minutes > 0):
+        raise BadInput(f"--minutes must be positive, got {minutes}")
+    for what, folder in (("--poses", poses_dir), ("--reference", reference_dir)):
+        if folder is not None and not Path(folder).is_dir():
+            raise BadInput(f"{what} {folder}: no such folder")
+    try:
+        data = load_data(capture_dir, poses_dir, reference_dir, downsample)
+    except NerfInputError as exc:
+        raise BadInput(str(exc)) from None
+    cfg = TrainConfig(model=model, minutes=minutes, max_steps=max_steps, seed=seed)
+    model_cfg = MODELS[model][1]
+    ckpt = _resume_file(out)
+    if resume and not ckpt.exists() and (out / "checkpoint.pt").is_file():
+        shutil.copyfile(out / "checkpoint.pt", ckpt)
+    elif not resume and ckpt.exists():
+        ckpt.unlink()
+    small = data.test[0].camera.intrinsics
+    full = data.test[0].full_camera.intrinsics
+    manifest = Manifest("nerf", params={
+        "model": model, "minutes": minutes, "max_steps": max_steps, "seed": seed, "downsample": downsample,
+        "working_size": [small.width, small.height], "render_size": [full.width, full.height],
+        "render_full_res": bool(model_cfg.render_full_res), "poses": data.poses, "reference": data.reference,
+        "background": "black (the scene's); masks unused", "box_lo": data.lo.tolist(), "box_hi": data.hi.tolist()})
+    manifest.add_input(capture_dir / "cameras.json")
+    manifest.add_input(capture_dir / "linear")
+    if poses_dir is not None:
+        manifest.add_input(Path(poses_dir) / "cameras.json")
+    if reference_dir is not None:
+        manifest.add_input(Path(reference_dir) / "linear")
+
+    with progress_bar(quiet) as bar:
+        task = bar.add_task(f"nerf {model}", total=100, info="")
+
+        def on_step(p: dict) -> None:
+            held = "-" if p["test_psnr"] is None else f"{p['test_psnr']:.2f}"
+            bar.update(task, completed=round(100 * p["fraction"], 1),
+                       info=f"step {p['step']} loss {p['loss']:.2e} psnr {p['psnr']:.2f} held-out {held} dB")
+
+        result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step)
+        bar.update(task, completed=100, info=f"rendering {len(data.test)} held-out views")
+        rows, renders = evaluate_views(result.model, data, full_res=model_cfg.render_full_res)
+
+    with atomic_stage(out) as tmp:
+        shutil.copyfile(ckpt, tmp / "checkpoint.pt")
+        for name, r in renders.items():
+            write_exr(tmp / "renders" / f"{name}.exr", r["rgb"])
+            write_preview(tmp / "renders" / f"{name}.png", r["rgb"])
+            write_exr(tmp / "depth" / f"{name}.exr", r["depth"])
+        write_curve_csv(tmp / "curve.csv", result.curve)
+        metrics = {
+            "model": model, "scale": f"{small.width}x{small.height} (capture {full.width}x{full.height} / {downsample}, "
+                                     "area-averaged)",
+            "reference": data.reference, "poses": data.poses,
+            "psnr_mean": float(np.mean([r["psnr"] for r in rows])), "ssim_mean": float(np.mean([r["ssim"] for r in rows])),
+            "views": rows, "steps": result.steps, "train_s": round(result.train_s, 3),
+            "curve_final_psnr": result.curve[-1]["psnr"] if result.curve else None,
+        }
+        if model_cfg.render_full_res:
+            metrics["psnr_full_mean"] = float(np.mean([r["psnr_full"] for r in rows]))
+            metrics["ssim_full_mean"] = float(np.mean([r["ssim_full"] for r in rows]))
+        write_json(tmp / "metrics.json", metrics)
+        manifest.metrics = {k: metrics[k] for k in ("psnr_mean", "ssim_mean", "steps", "train_s")}
+        m = manifest.write(tmp)
+    ckpt.unlink(missing_ok=True)
+    return m
+
+
+if __name__ == "__main__":  # temporary: for testing until the lead wires the CLI
+    import argparse
+    import sys
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("capture_dir", type=Path)
+    ap.add_argument("--poses", type=Path)
+    ap.add_argument("--reference", type=Path)
+    ap.add_argument("--model", default="fast")
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args()
+    try:
+        man = run_nerf(a.capture_dir, a.poses, a.model, a.minutes, a.out, a.reference, resume=a.resume, quiet=a.quiet)
+    except BadInput as exc:
+        print(f"lumigraph: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    print(f"nerf {a.model}: PSNR {man['metrics']['psnr_mean']:.2f} dB in {man['metrics']['train_s']:.0f} s -> {a.out}")

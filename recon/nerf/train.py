@@ -1,0 +1,241 @@
+"""Training a radiance field on a wall-clock budget, rendering and evaluating held-out views.
+
+The loop: random rays from all training pixels (a seeded generator), the model's render, MSE
+against the linear radiance (plus the coarse network's MSE for NeRF), Adam with the model's
+learning-rate schedule, which follows *progress* = max(training time / budget, step / max_steps).
+The clock counts training only: held-out evaluations for the curve and checkpoint writes are
+excluded (``wall_s`` in the curve counts everything). Same seed, same data order; the schedule
+is deterministic when ``max_steps`` bounds the run before the time budget does.
+
+Checkpoints (``torch.save``): model state, optimizer state, step, training time, curve, sampler
+state. ``train(..., checkpoint=path)`` writes one every ``checkpoint_every_s`` seconds of training
+and ``resume=True`` continues from it up to the same budget.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from render.camera import Camera
+from render.image_io import atomic_path
+from render.metrics import psnr, ssim
+
+from .data import NerfData, camera_rays, stack_rays
+from .models import MODELS, make_model
+
+__all__ = ["TrainConfig", "TrainResult", "train", "render_view", "evaluate_views", "mse_to_psnr"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """model: a name in ``MODELS``; minutes: training-time budget; max_steps: optional step cap;
+    seed: model init and ray sampling; eval_every_s: training seconds between held-out PSNR
+    points of the curve; checkpoint_every_s: training seconds between checkpoints; threads:
+    torch CPU threads."""
+
+    model: str = "fast"
+    minutes: float = 10.0
+    max_steps: int | None = None
+    seed: int = 0
+    eval_every_s: float = 30.0
+    checkpoint_every_s: float = 120.0
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"unknown NeRF model {self.model!r}; known: {sorted(MODELS)}")
+        if not (self.minutes > 0 and math.isfinite(self.minutes)):
+            raise ValueError(f"minutes must be a positive number, got {self.minutes}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+
+
+@dataclass
+class TrainResult:
+    """model (trained, eval mode); steps; train_s: training seconds; curve: rows of
+    {step, train_s, wall_s, psnr} (held-out PSNR in dB at the working scale)."""
+
+    model: nn.Module
+    steps: int
+    train_s: float
+    curve: list[dict] = field(default_factory=list)
+
+
+def mse_to_psnr(mse: float) -> float:
+    """PSNR in dB of a mean squared error of [0, 1] images (capped at 100 dB for mse = 0)."""
+    return 100.0 if mse <= 1e-10 else float(-10.0 * math.log10(mse))
+
+
+@torch.no_grad()
+def render_view(model: nn.Module, camera: Camera, chunk: int = 8192,
+                pixels: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+    """Render a camera: {"rgb": (H, W, 3), "depth": (H, W) z-depth (0 where the opacity is below
+    0.5, as the capture's depth), "opacity": (H, W)}, float32. With ``pixels`` ((P,) flat
+    row-major indices) only those pixels: (P, 3), (P,), (P,)."""
+    model.eval()
+    o, d = camera_rays(camera)
+    if pixels is not None:
+        o, d = o[pixels], d[pixels]
+    rgb, dist, acc = [], [], []
+    for i in range(0, o.shape[0], chunk):
+        out = model.render(o[i:i + chunk], d[i:i + chunk], training=False)
+        rgb.append(out.rgb)
+        dist.append(out.distance)
+        acc.append(out.opacity)
+    rgb, dist, acc = torch.cat(rgb), torch.cat(dist), torch.cat(acc)
+    forward = torch.from_numpy(camera.cam_to_world[:3, 2].astype(np.float32))
+    z = dist * (d @ forward)
+    z = torch.where(acc >= 0.5, z, torch.zeros_like(z))
+    k = camera.intrinsics
+    shape = (k.height, k.width) if pixels is None else (pixels.shape[0],)
+    return {"rgb": rgb.reshape(*shape, 3).numpy(), "depth": z.reshape(shape).numpy(),
+            "opacity": acc.reshape(shape).numpy()}
+
+
+def _curve_pixels(data: NerfData, n: int | None, seed: int) -> list[torch.Tensor | None]:
+    if n is None:
+        return [None] * len(data.test)
+    g = torch.Generator().manual_seed(seed + 1)
+    out = []
+    for v in data.test:
+        total = v.camera.intrinsics.width * v.camera.intrinsics.height
+        out.append(torch.randperm(total, generator=g)[:min(n, total)])
+    return out
+
+
+def _held_out_psnr(model: nn.Module, data: NerfData, pixels: list) -> float:
+    """Mean over held-out views of the PSNR (whole images, or the fixed pixel subsets)."""
+    vals = []
+    for v, px in zip(data.test, pixels):
+        pred = render_view(model, v.camera, pixels=px)["rgb"]
+        ref = v.rgb.reshape(-1, 3) if px is None else v.rgb.reshape(-1, 3)[px.numpy()]
+        mse = float(np.mean((np.clip(pred.reshape(-1, 3), 0, 1) - np.clip(ref, 0, 1)) ** 2))
+        vals.append(mse_to_psnr(mse))
+    model.train()
+    return float(np.mean(vals))
+
+
+def _make_optimizer(model, progress: float) -> torch.optim.Optimizer:
+    return torch.optim.Adam(model.param_groups(progress), betas=(0.9, 0.99))
+
+
+def _save(path: Path, model, opt, step, train_s, curve, gen, cfg: TrainConfig) -> None:
+    with atomic_path(path) as tmp:
+        torch.save({"model_name": cfg.model, "train_config": asdict(cfg), "state": model.state_dict(),
+                    "optimizer": opt.state_dict(), "step": step, "train_s": train_s, "curve": curve,
+                    "generator": gen.get_state(), "lo": model.lo.tolist(), "hi": model.hi.tolist()}, tmp)
+
+
+def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resume: bool = False,
+          progress: Callable[[dict], None] | None = None) -> TrainResult:
+    """Train ``cfg.model`` on ``data.train`` for ``cfg.minutes`` of training time.
+
+    checkpoint: where to write checkpoints (None: never); resume: continue from ``checkpoint``
+    if it exists; progress: called after every step with {fraction, step, loss, psnr,
+    test_psnr (latest held-out PSNR or None), rays, points}.
+    """
+    torch.set_num_threads(cfg.threads)
+    model = make_model(cfg.model, data.lo, data.hi, cfg.seed)
+    model_cfg = MODELS[cfg.model][1]
+    gen = torch.Generator().manual_seed(cfg.seed)
+    o_all, d_all, c_all = stack_rays(data.train)
+    n_rays = o_all.shape[0]
+    budget = cfg.minutes * 60.0
+    step, train_s, curve = 0, 0.0, []
+    state = None
+    if resume and checkpoint is not None and Path(checkpoint).is_file():
+        state = torch.load(checkpoint, weights_only=False)
+        if state["model_name"] != cfg.model:
+            raise ValueError(f"{checkpoint}: checkpoint of model {state['model_name']!r}, not {cfg.model!r}")
+        model.load_state_dict(state["state"])
+        step, train_s, curve = state["step"], state["train_s"], list(state["curve"])
+        gen.set_state(state["generator"])
+
+    def frac() -> float:
+        f = train_s / budget
+        if cfg.max_steps is not None:
+            f = max(f, step / cfg.max_steps)
+        return f
+
+    model.on_progress(frac(), step)
+    opt = _make_optimizer(model, frac())
+    if state is not None:
+        opt.load_state_dict(state["optimizer"])
+    pixels = _curve_pixels(data, getattr(model_cfg, "curve_pixels", None), cfg.seed)
+    wall0 = time.perf_counter() - (curve[-1]["wall_s"] if curve else 0.0)
+    next_eval = (curve[-1]["train_s"] if curve else 0.0) + cfg.eval_every_s  # no point at step 0
+    next_ckpt = train_s + cfg.checkpoint_every_s
+    test_psnr = curve[-1]["psnr"] if curve else None
+    model.train()
+    while True:
+        if train_s >= next_eval:
+            test_psnr = _held_out_psnr(model, data, pixels)
+            curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
+                          "psnr": round(test_psnr, 4)})
+            next_eval = train_s + cfg.eval_every_s
+        if frac() >= 1.0:
+            break
+        t0 = time.perf_counter()
+        if model.on_progress(frac(), step):
+            opt = _make_optimizer(model, frac())
+        for group in opt.param_groups:
+            group["lr"] = model.learning_rates(frac())[group["name"]]
+        idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
+        target = c_all[idx]
+        out = model.render(o_all[idx], d_all[idx], training=True, generator=gen)
+        mse = torch.mean((out.rgb - target) ** 2)
+        loss = mse + sum(torch.mean((a - target) ** 2) for a in out.aux)
+        if not torch.isfinite(loss):
+            raise RuntimeError(f"non-finite loss at step {step} (model {cfg.model})")
+        opt.zero_grad(set_to_none=True)
+        if loss.requires_grad:  # a batch whose rays all cross empty space has nothing to fit
+            loss.backward()
+            opt.step()
+        step += 1
+        train_s += time.perf_counter() - t0
+        if progress is not None:
+            progress({"fraction": min(frac(), 1.0), "step": step, "loss": loss.item(), "psnr": mse_to_psnr(mse.item()),
+                      "test_psnr": test_psnr, "rays": int(idx.shape[0]), "points": out.n_points})
+        if checkpoint is not None and train_s >= next_ckpt:
+            _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
+            next_ckpt = train_s + cfg.checkpoint_every_s
+    if hasattr(model, "update_occupancy") and step >= getattr(model_cfg, "occ_start", 0):
+        model.update_occupancy()  # the final state, so rendering skips all empty space
+    if not curve or curve[-1]["step"] != step:
+        test_psnr = _held_out_psnr(model, data, pixels)
+        curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
+                      "psnr": round(test_psnr, 4)})
+    if checkpoint is not None:
+        _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
+    model.eval()
+    return TrainResult(model, step, train_s, curve)
+
+
+def evaluate_views(model: nn.Module, data: NerfData, full_res: bool) -> tuple[list[dict], dict[str, dict]]:
+    """Render every held-out view and compare it with its reference.
+
+    Returns (rows, renders): rows of {view, psnr, ssim} at the working scale (against the
+    area-downsampled reference), plus {psnr_full, ssim_full} at the reference's resolution when
+    ``full_res``; renders[view] = {"rgb", "depth"} at the reference's resolution: rendered there
+    when ``full_res``, else the working-scale render repeated to that size (nearest).
+    """
+    rows, renders = [], {}
+    for v in data.test:
+        small = render_view(model, v.camera)
+        row = {"view": v.name, "psnr": psnr(small["rgb"], v.rgb), "ssim": ssim(small["rgb"], v.rgb)}
+        if full_res:
+            big = render_view(model, v.full_camera)
+            row.update(psnr_full=psnr(big["rgb"], v.full_rgb), ssim_full=ssim(big["rgb"], v.full_rgb))
+        else:
+            f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
+            big = {k: np.repeat(np.repeat(a, f, axis=0), f, axis=1) for k, a in small.items()}
+        rows.append(row)
+        renders[v.name] = {"rgb": big["rgb"], "depth": big["depth"]}
+    return rows, renders
