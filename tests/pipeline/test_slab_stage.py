@@ -83,3 +83,21 @@ def test_slab_stage_bad_input(capture, tmp_path):
         run_slab(broken, None, tmp_path / "o3", quiet=True)
     with pytest.raises(BadInput, match="linear"):
         run_slab(capture, None, tmp_path / "o4", SlabStageConfig(layout=SMALL), reference_dir=tmp_path, quiet=True)
+
+
+def test_slab_study_table_and_plot(capture, tmp_path):
+    """One command: a (uv_res x st_res) grid -> study.csv with one row per grid point and mode, an SVG."""
+    import csv
+
+    from pipeline.stages.slab_study import run_slab_study
+
+    out = tmp_path / "study"
+    m = run_slab_study(capture, out, uv_res=(3,), st_res=(16, 24), config=SlabStageConfig(layout=SMALL), quiet=True)
+    rows = list(csv.DictReader(open(out / "study.csv")))
+    assert len(rows) == 2 * len(MODES) and m["metrics"]["grid_points"] == 2
+    assert {r["mode"] for r in rows} == set(MODES)
+    for r in rows:
+        assert np.isfinite(float(r["psnr"])) and float(r["slab_mb"]) > 0 and float(r["render_cpu_ms_256"]) > 0
+    mb = {r["st_res"]: float(r["slab_mb"]) for r in rows}
+    assert mb["24"] > mb["16"]
+    assert (out / "study.svg").read_text().startswith("<svg") and not (out / "scratch").exists()
