@@ -27,10 +27,12 @@ __all__ = [
     "BSDFSample", "DiffuseEmitter",
     "lambert_eval", "lambert_pdf", "lambert_sample",
     "mirror_sample", "fresnel_dielectric", "dielectric_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample",
-    "MaterialTable", "LAMBERT", "MIRROR", "DIELECTRIC", "EMISSIVE",
+    "MaterialTable", "LAMBERT", "MIRROR", "DIELECTRIC", "EMISSIVE", "CONDUCTOR", "ROUGH_DIELECTRIC",
 ]
 
 LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
+#: GGX microfacet kinds (render.microfacet); only the numpy integrators (render.volpath) shade them
+CONDUCTOR, ROUGH_DIELECTRIC = 4, 5
 
 
 class DiffuseEmitter(Lambertian):
@@ -180,9 +182,10 @@ def bsdf_sample(kind: np.ndarray, albedo: np.ndarray, ior: np.ndarray, wo: np.nd
 class MaterialTable:
     """Scene materials as arrays, one entry per object (M = number of objects).
 
-    kind: (M,) int (LAMBERT, MIRROR, DIELECTRIC, EMISSIVE). albedo: (M, 3) Lambertian albedo
-    (texture tint), or mirror reflectance. ior: (M,). Le: (M, 3) emitted radiance. emits: (M,)
-    bool. two_sided: (M,) bool (emission). textures: {object index: (H, W, 3) float32 linear}.
+    kind: (M,) int (LAMBERT, MIRROR, DIELECTRIC, EMISSIVE, CONDUCTOR, ROUGH_DIELECTRIC). albedo:
+    (M, 3) Lambertian albedo (texture tint), or mirror reflectance. ior: (M,). Le: (M, 3) emitted
+    radiance. emits: (M,) bool. two_sided: (M,) bool (emission). textures: {object index:
+    (H, W, 3) float32 linear}. alpha: (M,) GGX roughness; eta, k: (M, 3) conductor complex IOR.
     """
 
     kind: np.ndarray
@@ -192,6 +195,14 @@ class MaterialTable:
     emits: np.ndarray
     two_sided: np.ndarray
     textures: dict
+    alpha: np.ndarray | None = None
+    eta: np.ndarray | None = None
+    k: np.ndarray | None = None
+
+    @property
+    def has_glossy(self) -> bool:
+        """Whether any object is a GGX microfacet material (the compiled kernels lack them)."""
+        return bool(np.any((self.kind == CONDUCTOR) | (self.kind == ROUGH_DIELECTRIC)))
 
     @classmethod
     def from_scene(cls, scene: Scene) -> "MaterialTable":
@@ -202,9 +213,16 @@ class MaterialTable:
         Le = np.zeros((m, 3))
         two = np.zeros(m, bool)
         tex = {}
+        alpha, eta, kk = np.zeros(m), np.ones((m, 3)), np.zeros((m, 3))
+        from .microfacet import RoughConductor, RoughDielectric
+
         for i, o in enumerate(scene.objects):
             mat = o.material
-            if isinstance(mat, Lambertian):
+            if isinstance(mat, RoughConductor):
+                kind[i], alpha[i], eta[i], kk[i] = CONDUCTOR, mat.alpha, mat.eta, mat.k
+            elif isinstance(mat, RoughDielectric):
+                kind[i], alpha[i], ior[i] = ROUGH_DIELECTRIC, mat.alpha, mat.ior
+            elif isinstance(mat, Lambertian):
                 kind[i] = LAMBERT
                 albedo[i] = mat.albedo
                 if mat.texture is not None:
@@ -227,7 +245,7 @@ class MaterialTable:
             else:
                 raise ValueError(f"object '{o.name}': unsupported material {type(mat).__name__}")
         emits = Le.max(axis=1) > 0
-        return cls(kind, albedo, ior, Le, emits, two, tex)
+        return cls(kind, albedo, ior, Le, emits, two, tex, alpha, eta, kk)
 
     def diffuse_albedo(self, obj: np.ndarray, texcoords) -> np.ndarray:
         """(N, 3) linear albedo at hits on objects ``obj`` (N,); texcoords(mask) -> (K, 2) uv.

@@ -1,0 +1,379 @@
+"""``volpath``: a wavefront volumetric path tracer (numpy), with glossy surfaces and media.
+
+It estimates the same measurement as :mod:`render.pathtracer` (box-filtered pixel radiance,
+the same camera, light and radiometric conventions) and adds what the compiled kernels lack:
+
+* GGX microfacet surfaces (:mod:`render.microfacet`: rough conductors and rough dielectrics),
+  with next-event estimation and BSDF sampling combined by MIS (power heuristic);
+* participating media (:mod:`render.media`): free flights by delta tracking with a majorant,
+  emission collected at every tentative collision, real scattering with the Henyey-Greenstein
+  phase function, next-event estimation from medium vertices (phase sampling and light
+  sampling, MIS), shadow rays attenuated by ratio tracking (exp(-sigma_t d) exactly in
+  homogeneous media) across every medium they cross.
+
+Paths are traced wavefront in numpy: each bounce is one Embree query for the surfaces, one for
+the media boundaries (only when the scene has media: media code never runs without media),
+vectorized tracking and shading, one occlusion query for the shadow rays. Vertex bookkeeping
+(throughput, previous-vertex density and delta flag for MIS, the medium a ray travels in)
+lives in the arrays of :func:`trace`, the eye-subpath generator the other integrators share.
+
+Max depth counts scattering events (surface or medium), as in render.pathtracer; Russian
+roulette from vertex rr_depth. Without 'caustics' among the effects, paths are cut when they
+leave a non-delta vertex along a delta (specular) sample (what render.pathtracer drops).
+
+Random numbers: a numpy Generator seeded by (seed, sample range, batch): renders are
+deterministic for a given (seed, sample range, batch_paths), and renders of disjoint sample
+ranges are independent and merge (:func:`render.film.merge_results`).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .accel import spawn_origin
+from .bsdf import (CONDUCTOR, DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, ROUGH_DIELECTRIC, bsdf_sample, lambert_eval,
+                   lambert_pdf)
+from .camera import Camera
+from .film import Film, RenderResult
+from .media import EV_ABSORB, EV_PASS, EV_SCATTER, MediumSet, hg_pdf, hg_sample
+from .microfacet import (ALPHA_SMOOTH, conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
+                         rough_dielectric_pdf, rough_dielectric_sample)
+from .sampling import mis_weight, orthonormal_frame, to_local, to_world
+
+__all__ = ["VolContext", "volpath_context", "trace", "render_volpath", "surface_eval", "surface_sample",
+           "is_delta_material", "shadow_transmittance"]
+
+_MAX_CROSSINGS = 16
+
+
+@dataclass
+class VolContext:
+    """What volpath needs beyond :class:`render.pathtracer.PreparedScene`: the media (or None)."""
+
+    ps: object  # render.pathtracer.PreparedScene
+    media: MediumSet | None
+
+
+def volpath_context(scene, ps, majorants: dict | None = None) -> VolContext:
+    """Context for ``scene`` with its prepared scene ``ps``; media built only if present."""
+    return VolContext(ps, MediumSet(scene.media, majorants) if scene.media else None)
+
+
+# ---------------------------------------------------------------- surfaces
+def is_delta_material(kind: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """(N,) bool: the material at each vertex scatters only along delta directions."""
+    return (kind == MIRROR) | (kind == DIELECTRIC) | (((kind == CONDUCTOR) | (kind == ROUGH_DIELECTRIC))
+                                                      & (alpha < ALPHA_SMOOTH))
+
+
+def surface_eval(mats, obj: np.ndarray, albedo: np.ndarray, wo: np.ndarray, wi: np.ndarray):
+    """(f (N, 3), pdf (N,)) of the objects' BSDFs for local wo, wi (N, 3) (frames: two-sided
+    materials face wo, dielectrics outward). Delta lobes give 0."""
+    kind = mats.kind[obj]
+    n = len(obj)
+    f = np.zeros((n, 3))
+    pdf = np.zeros(n)
+    s = np.nonzero(kind == LAMBERT)[0]
+    if len(s):
+        f[s], pdf[s] = lambert_eval(albedo[s], wo[s], wi[s]), lambert_pdf(wo[s], wi[s])
+    s = np.nonzero(kind == CONDUCTOR)[0]
+    if len(s):
+        o = obj[s]
+        a, e, k = mats.alpha[o], mats.eta[o], mats.k[o]
+        f[s] = conductor_eval(a, e, k, wo[s], wi[s])
+        pdf[s] = conductor_pdf(a, wo[s], wi[s])
+    s = np.nonzero(kind == ROUGH_DIELECTRIC)[0]
+    if len(s):
+        o = obj[s]
+        f[s] = rough_dielectric_eval(mats.alpha[o], mats.ior[o], wo[s], wi[s])
+        pdf[s] = rough_dielectric_pdf(mats.alpha[o], mats.ior[o], wo[s], wi[s])
+    return f, pdf
+
+
+def surface_sample(mats, obj: np.ndarray, albedo: np.ndarray, wo: np.ndarray, u1: np.ndarray, u2: np.ndarray):
+    """Sample every vertex's BSDF (local frames as :func:`surface_eval`): a
+    :class:`render.bsdf.BSDFSample`."""
+    kind = mats.kind[obj]
+    out = bsdf_sample(np.where((kind == CONDUCTOR) | (kind == ROUGH_DIELECTRIC), EMISSIVE, kind), albedo,
+                      mats.ior[obj], wo, u1, u2)
+    for kk, fn in ((CONDUCTOR, lambda s, o: conductor_sample(mats.alpha[o], mats.eta[o], mats.k[o], wo[s], u2[s])),
+                   (ROUGH_DIELECTRIC, lambda s, o: rough_dielectric_sample(mats.alpha[o], mats.ior[o], wo[s],
+                                                                           u1[s], u2[s]))):
+        s = np.nonzero(kind == kk)[0]
+        if len(s):
+            bs = fn(s, obj[s])
+            out.wi[s], out.weight[s], out.pdf[s], out.delta[s], out.valid[s] = bs.wi, bs.weight, bs.pdf, bs.delta, bs.valid
+    return out
+
+
+def _frames(mats, obj, ng, d):
+    """Shading normals (N, 3): geometric normal, flipped to face -d unless the material is a
+    (smooth or rough) dielectric, whose frame is the outward normal."""
+    kind = mats.kind[obj]
+    diel = (kind == DIELECTRIC) | (kind == ROUGH_DIELECTRIC)
+    flip = (np.einsum("ij,ij->i", ng, d) > 0) & ~diel
+    return np.where(flip[:, None], -ng, ng)
+
+
+# ---------------------------------------------------------------- shadow rays
+def shadow_transmittance(ctx: VolContext, p: np.ndarray, ng: np.ndarray | None, wi: np.ndarray,
+                         dist: np.ndarray, mid: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(N, 3) visibility x transmittance of segments from p (N, 3) along wi (N, 3) over dist (N,)
+    (inf: to a directional light) starting in media mid (N,): 0 if a surface blocks the segment,
+    else the product of each crossed medium's transmittance. ng: (N, 3) geometric normals to
+    offset surface points along (None for medium points)."""
+    ps = ctx.ps
+    extent = ps.geom.extent
+    o = p if ng is None else spawn_origin(p, ng, wi, extent)
+    tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - 1e-6 * extent, 3e38)
+    vis = ~ps.accel.occluded(o, wi, np.maximum(tmax, 0.0))
+    T = np.repeat(vis.astype(np.float64)[:, None], 3, axis=1)
+    ms = ctx.media
+    if ms is None:
+        return T
+    live = np.nonzero(vis)[0]
+    rem = tmax.copy()
+    o = o.copy()
+    m = mid.copy()
+    for _ in range(_MAX_CROSSINGS):
+        if len(live) == 0:
+            break
+        tb, bm, entering, btri = ms.boundary(o[live], wi[live])
+        seg = np.minimum(tb, rem[live])
+        inm = m[live] >= 0
+        if np.any(inm):
+            s = live[inm]
+            T[s] *= ms.transmittance(m[s], o[s], wi[s], seg[inm], rng)
+        cross = tb < rem[live]
+        if not np.any(cross):
+            break
+        c = live[cross]
+        x = o[c] + tb[cross, None] * wi[c]
+        o[c] = spawn_origin(x, ms.geom.normal[btri[cross]], wi[c], ms.geom.extent)
+        rem[c] -= tb[cross]
+        m[c] = np.where(entering[cross], bm[cross], -1)
+        live = c[T[c].max(axis=1) > 0]
+    return T
+
+
+# ---------------------------------------------------------------- the integrator
+def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: np.random.Generator,
+          max_depth: int = 8, rr_depth: int = 3, roulette: bool = True, caustics: bool = True,
+          heuristic: float = 2.0) -> np.ndarray:
+    """Radiance (N, 3) arriving along camera rays (origins o, unit directions d (N, 3)) that
+    start in media mid (N,) (-1: vacuum), by volumetric path tracing with NEE and MIS."""
+    ps = ctx.ps
+    mats, lights, geom = ps.mats, ps.lights, ps.geom
+    ms = ctx.media
+    n = len(o)
+    L = np.zeros((n, 3))
+    idx = np.arange(n)
+    beta = np.ones((n, 3))
+    pdf_prev = np.zeros(n)
+    delta_prev = np.ones(n, bool)  # camera rays: emission seen directly has weight 1
+    after_diffuse = np.zeros(n, bool)
+    bounces = np.zeros(n, np.int64)
+    last_p = o.copy()  # last scattering vertex (for the light pdf of emitters hit by sampling)
+    o, d, mid = o.copy(), d.copy(), mid.copy()
+    extent = geom.extent
+    bg = ps.background
+    has_bg = bool(bg.max() > 0)
+    can_nee = not lights.empty
+
+    def keep(sel):
+        nonlocal idx, beta, pdf_prev, delta_prev, after_diffuse, bounces, last_p, o, d, mid
+        idx, beta, pdf_prev, delta_prev = idx[sel], beta[sel], pdf_prev[sel], delta_prev[sel]
+        after_diffuse, bounces, last_p, o, d, mid = after_diffuse[sel], bounces[sel], last_p[sel], o[sel], d[sel], mid[sel]
+
+    for _ in range(4 * (max_depth + 1) + _MAX_CROSSINGS):
+        if len(idx) == 0:
+            break
+        h = ps.accel.intersect(o, d)
+        t_end = h.t.copy()
+        cross = np.zeros(len(idx), bool)
+        scat = np.zeros(len(idx), bool)
+        t_scat = np.zeros(len(idx))
+        if ms is not None:
+            tb, bm, entering, btri = ms.boundary(o, d)
+            cross = tb < h.t
+            t_end = np.minimum(h.t, tb)
+            inm = np.nonzero(mid >= 0)[0]
+            if len(inm):
+                ev, ts, w, em = ms.delta_track(mid[inm], o[inm], d[inm], t_end[inm], rng)
+                np.add.at(L, idx[inm], beta[inm] * em)
+                beta[inm] *= w
+                gone = np.zeros(len(idx), bool)
+                gone[inm[ev == EV_ABSORB]] = True
+                s = inm[ev == EV_SCATTER]
+                scat[s] = True
+                t_scat[s] = ts[ev == EV_SCATTER]
+                cross &= ~scat
+                keep(~gone)
+                h.t, h.tri, h.u, h.v = h.t[~gone], h.tri[~gone], h.u[~gone], h.v[~gone]
+                tb, bm, entering, btri = tb[~gone], bm[~gone], entering[~gone], btri[~gone]
+                cross, scat, t_scat = cross[~gone], scat[~gone], t_scat[~gone]
+            # boundary crossings: same direction, new medium, not a bounce
+            c = np.nonzero(cross)[0]
+            if len(c):
+                x = o[c] + tb[c, None] * d[c]
+                o[c] = spawn_origin(x, ms.geom.normal[btri[c]], d[c], ms.geom.extent)
+                mid[c] = np.where(entering[c], bm[c], -1)
+        surf = ~cross & ~scat & (h.tri >= 0)
+        esc = ~cross & ~scat & (h.tri < 0)
+        if has_bg and np.any(esc):
+            np.add.at(L, idx[esc], beta[esc] * bg)
+        # ------------------------------------------------ surface vertices
+        si = np.nonzero(surf)[0]
+        tri = h.tri[si]
+        p, ng = geom.point_normal(tri, h.u[si], h.v[si])
+        obj = geom.obj[tri]
+        ds = d[si]
+        # emission (MIS against light sampling unless the previous vertex was delta)
+        em = mats.emits[obj]
+        if np.any(em):
+            e = np.nonzero(em)[0]
+            cos_l = -np.einsum("ij,ij->i", ds[e], ng[e])
+            front = mats.two_sided[obj[e]] | (cos_l > 0)
+            dist = np.linalg.norm(p[e] - last_p[si[e]], axis=1)
+            w = np.ones(len(e))
+            nd = ~delta_prev[si[e]]
+            if np.any(nd) and can_nee:
+                pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
+                w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, heuristic)
+            np.add.at(L, idx[si[e]], beta[si[e]] * mats.Le[obj[e]] * (w * front)[:, None])
+        kind = mats.kind[obj]
+        alive_s = (kind != EMISSIVE) & (bounces[si] < max_depth)
+        # ------------------------------------------------ medium vertices
+        mi = np.nonzero(scat)[0]
+        pm = o[mi] + t_scat[mi, None] * d[mi]
+        alive_m = bounces[mi] < max_depth
+        # ------------------------------------------------ next-event estimation
+        sa = si[alive_s]
+        ma = mi[alive_m]
+        nsv = len(sa)
+        if can_nee and nsv + len(ma):
+            pts = np.concatenate([p[alive_s], pm[alive_m]])
+            lsmp = lights.sample(pts, rng.random(len(pts)), rng.random((len(pts), 2)))
+            f = np.zeros((len(pts), 3))
+            pb = np.zeros(len(pts))
+            if nsv:
+                objs = obj[alive_s]
+                nrm = _frames(mats, objs, ng[alive_s], d[sa])
+                t1, t2 = orthonormal_frame(nrm)
+                wo_l = to_local(-d[sa], t1, t2, nrm)
+                wi_l = to_local(lsmp.wi[:nsv], t1, t2, nrm)
+                alb = mats.diffuse_albedo(objs, lambda m: geom.texcoords(tri[alive_s][m], h.u[sa][m], h.v[sa][m]))
+                fs, pbs = surface_eval(mats, objs, alb, wo_l, wi_l)
+                f[:nsv] = fs * np.abs(wi_l[:, 2:3])
+                pb[:nsv] = pbs
+            if len(ma):
+                ph = hg_pdf(ms.g[mid[ma]], d[ma], lsmp.wi[nsv:])
+                f[nsv:] = ph[:, None]
+                pb[nsv:] = ph
+            ok = lsmp.valid & (f.max(axis=1) > 0)
+            if np.any(ok):
+                k = np.nonzero(ok)[0]
+                ngs = np.zeros((len(k), 3))
+                surf_k = k < nsv
+                ngs[surf_k] = ng[alive_s][k[surf_k]]
+                start_mid = np.concatenate([mid[sa], mid[ma]])[k]
+                # medium points: no offset (the sample lies inside the medium)
+                o_sh = pts[k].copy()
+                if np.any(surf_k):
+                    o_sh[surf_k] = spawn_origin(pts[k[surf_k]], ngs[surf_k], lsmp.wi[k[surf_k]], extent)
+                T = shadow_transmittance(ctx, o_sh, None, lsmp.wi[k], lsmp.dist[k], start_mid, rng)
+                w = np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], heuristic))
+                contrib = f[k] * lsmp.Li[k] * T * (w / lsmp.pdf[k])[:, None]
+                owner = np.concatenate([sa, ma])[k]
+                np.add.at(L, idx[owner], beta[owner] * contrib)
+        # ------------------------------------------------ continue: surface BSDF samples
+        nxt = np.zeros(len(idx), bool)
+        new_d = d.copy()
+        new_o = o.copy()
+        if nsv:
+            objs = obj[alive_s]
+            nrm = _frames(mats, objs, ng[alive_s], d[sa])
+            t1, t2 = orthonormal_frame(nrm)
+            wo_l = to_local(-d[sa], t1, t2, nrm)
+            alb = mats.diffuse_albedo(objs, lambda m: geom.texcoords(tri[alive_s][m], h.u[sa][m], h.v[sa][m]))
+            bs = surface_sample(mats, objs, alb, wo_l, rng.random(nsv), rng.random((nsv, 2)))
+            wi = to_world(bs.wi, t1, t2, nrm)
+            ok = bs.valid
+            if not caustics:
+                ok &= ~(bs.delta & after_diffuse[sa])
+            beta[sa] *= bs.weight
+            pdf_prev[sa] = bs.pdf
+            delta_prev[sa] = bs.delta
+            after_diffuse[sa] |= ~bs.delta
+            new_d[sa] = wi
+            new_o[sa] = spawn_origin(p[alive_s], ng[alive_s], wi, extent)
+            last_p[sa] = p[alive_s]
+            nxt[sa[ok]] = True
+        if len(ma):
+            wi = hg_sample(ms.g[mid[ma]], d[ma], rng.random((len(ma), 2)))
+            pdf_prev[ma] = hg_pdf(ms.g[mid[ma]], d[ma], wi)
+            delta_prev[ma] = False
+            after_diffuse[ma] = True
+            new_d[ma] = wi
+            new_o[ma] = pm[alive_m]
+            last_p[ma] = pm[alive_m]
+            nxt[ma] = True
+        bounced = np.zeros(len(idx), bool)
+        bounced[sa] = True
+        bounced[ma] = True
+        bounces[bounced] += 1
+        # Russian roulette when leaving vertices of index >= rr_depth
+        if roulette:
+            rr = np.nonzero(nxt & (bounces > rr_depth))[0]
+            if len(rr):
+                q = np.minimum(1.0, beta[rr].max(axis=1))
+                live = rng.random(len(rr)) < q
+                beta[rr[live]] /= q[live, None]
+                nxt[rr[~live]] = False
+        nxt |= cross
+        nxt &= beta.max(axis=1) > 0
+        o, d = new_o, new_d
+        keep(nxt)
+    return L
+
+
+def render_volpath(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None,
+                   ctx: VolContext | None = None) -> RenderResult:
+    """Render ``camera``'s view with ``volpath`` (settings: render.pathtracer.RenderSettings).
+
+    Returns a :class:`render.film.RenderResult` (mean and variance (H, W, 3) float32).
+    """
+    from .effects import scene_effects
+    from .pathtracer import prepare
+
+    t0 = time.perf_counter()
+    eff = scene_effects(scene) if effects is None else frozenset(effects)
+    ps = prepared if prepared is not None else prepare(scene, threads=settings.threads)
+    ctx = ctx if ctx is not None else volpath_context(scene, ps)
+    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    if not 0 <= a < b:
+        raise ValueError(f"sample_range must satisfy 0 <= start < stop, got {(a, b)}")
+    k = camera.intrinsics
+    npix = k.width * k.height
+    total = npix * (b - a)
+    mid0 = -1
+    if ctx.media is not None:
+        mid0 = int(ctx.media.medium_at(camera.cam_to_world[:3, 3][None])[0])
+    film = Film(k.width, k.height)
+    hp = 2.0 if settings.heuristic == "power" else 1.0
+    for c0 in range(0, total, settings.batch_paths):
+        c1 = min(c0 + settings.batch_paths, total)
+        rng = np.random.default_rng([settings.seed & 0xFFFFFFFF, a, b, c0])
+        flat = np.arange(c0, c1)
+        pix = flat % npix
+        jit = np.stack([pix % k.width + rng.random(len(flat)), pix // k.width + rng.random(len(flat))], axis=1)
+        o, d = camera.pixel_rays(jit)
+        L = trace(ctx, o, d, np.full(len(o), mid0, np.int64), rng, settings.max_depth, settings.rr_depth,
+                  settings.roulette, "caustics" in eff, hp)
+        if not np.all(np.isfinite(L)):
+            raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
+        film.add(pix, L)
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(total)}
+    return RenderResult.from_film(film, (a, b), "volpath", stats)
