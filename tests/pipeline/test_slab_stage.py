@@ -46,7 +46,8 @@ def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
     for mode in MODES:
         for v in tests:
             assert np.isfinite(metrics["modes"][mode]["per_view"][v]["psnr"])
-            assert 0 < metrics["modes"][mode]["per_view"][v]["ssim"] <= 1
+            if mode == metrics["mode"]:  # SSIM for the primary mode (the others: PSNR only)
+                assert 0 < metrics["modes"][mode]["per_view"][v]["ssim"] <= 1 and 0 < metrics["per_view"][v]["ssim"] <= 1
     slabs = load_slabs(out / "slabs")
     assert len(slabs) >= 3 and isinstance(slabs[0].radiance, np.memmap)
     if method == "rebin":
