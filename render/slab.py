@@ -29,7 +29,17 @@ light fields (Isaksen et al. 2000): the eye ray is intersected with a focal surf
 depth where it has one, else the focal plane ``focal_depth``), and each of the four nearest uv
 samples is looked up bilinearly where *its* ray through that focal point crosses st.
 Coordinates outside a quad mean the ray misses the slab; inside, interpolation clamps to the
-edge samples.
+edge samples. The focal surface is the depth of the *nearest* sample: at a silhouette it may
+belong to the background (0: the focal plane is used) or to the other surface.
+
+Two implementations of the same math: :func:`render_rays` / :func:`lookup` for arbitrary rays
+(numpy, float64 coordinates, all taps of a ray gathered at once), and :func:`render_view` for
+pinhole cameras (the compiled kernels of :mod:`render.slab_kernels`, one pass per pixel, bands
+of rows on several threads); tests check one against the other.
+
+Compression: ``radiance`` may be a :class:`VQRadiance` (2 x 2 x 2 x 2 ray tiles coded against a
+codebook, Levoy and Hanrahan's section 4); both paths look rays up through the codebook, so a
+compressed slab renders without being decoded.
 """
 from __future__ import annotations
 
