@@ -22,11 +22,27 @@ ALL_EFFECTS = frozenset(TRANSPORT_EFFECTS + SENSOR_EFFECTS)
 RASTER_EFFECTS = frozenset({"direct", "shadows", "noise", "distortion", "vignetting", "exposure"})
 
 
+def _glossy(m) -> bool:
+    """A GGX microfacet material rough enough to be sampled as a non-delta lobe."""
+    from .microfacet import ALPHA_SMOOTH, RoughConductor, RoughDielectric
+    return isinstance(m, (RoughConductor, RoughDielectric)) and m.alpha >= ALPHA_SMOOTH
+
+
+def _smooth_microfacet(m) -> bool:
+    from .microfacet import ALPHA_SMOOTH, RoughConductor, RoughDielectric
+    return isinstance(m, (RoughConductor, RoughDielectric)) and m.alpha < ALPHA_SMOOTH
+
+
 def infer_effects(scene: Scene) -> frozenset[str]:
-    """Light-transport effects the scene's content can produce (sensor effects excluded)."""
+    """Light-transport effects the scene's content can produce (sensor effects excluded).
+
+    Glossy (GGX) surfaces scatter light like diffuse ones in Heckbert's classes (a non-delta
+    vertex: direct light, interreflection, caustic receivers); GGX at alpha below
+    render.microfacet.ALPHA_SMOOTH is specular.
+    """
     mats = [o.material for o in scene.objects]
-    diffuse = [m for m in mats if isinstance(m, Lambertian) and m.albedo.max() > 0]
-    specular = any(isinstance(m, (Mirror, Dielectric)) for m in mats)
+    diffuse = [m for m in mats if (isinstance(m, Lambertian) and m.albedo.max() > 0) or _glossy(m)]
+    specular = any(isinstance(m, (Mirror, Dielectric)) or _smooth_microfacet(m) for m in mats)
     delta_lights = any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in scene.lights)
     area_lights = any(isinstance(m, Emissive) for m in mats)
     lit = delta_lights or area_lights
@@ -38,7 +54,8 @@ def infer_effects(scene: Scene) -> frozenset[str]:
     if area_lights and diffuse:
         out.add("soft_shadows")
     # diffuse-to-diffuse transport needs two diffuse objects or one non-convex diffuse mesh
-    diffuse_objs = [o for o in scene.objects if isinstance(o.material, Lambertian) and o.material.albedo.max() > 0]
+    diffuse_objs = [o for o in scene.objects
+                    if (isinstance(o.material, Lambertian) and o.material.albedo.max() > 0) or _glossy(o.material)]
     if lit and (len(diffuse_objs) > 1 or any(not o.mesh.is_convex for o in diffuse_objs)):
         out.add("interreflection")
     if specular and lit:

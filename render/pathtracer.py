@@ -25,7 +25,11 @@ Integrators (Heckbert's notation; see render.effects):
 * ``path``: L (S|D)* E with NEE + MIS at every diffuse vertex and Russian roulette: adds
   interreflection and caustics from area sources (found by BSDF sampling). Caustics from
   point, spot and directional lights are unreachable (a delta light through a delta BSDF):
-  asking for them is an error, never a silent omission; so is ``media``.
+  asking for them is an error, never a silent omission.
+* ``volpath`` (:mod:`render.volpath`, numpy): the path integrator plus participating media
+  (delta tracking, NEE through media by ratio tracking) and GGX microfacet surfaces
+  (:mod:`render.microfacet`), which the compiled kernels do not shade: ``auto`` picks it when
+  the scene has media (effect ``media``) or glossy materials, and only then (it is slower).
 
 Conventions: radiometry and light units of :mod:`render.scene`; pixel centres at +0.5 and
 OpenCV camera axes of :mod:`render.camera`; scene.background is the radiance of every escaping
@@ -80,6 +84,7 @@ __all__ = [
 INTEGRATOR_EFFECTS = {
     "direct": frozenset({"direct", "shadows", "soft_shadows", "specular"}),
     "path": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
+    "volpath": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"}),
 }
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
 #: random dimensions per bounce (render.pt_kernels.shade_bounce): light pick, light uv (2), lobe, bsdf uv (2),
@@ -91,7 +96,7 @@ _DIMS_PER_BOUNCE = 8
 class RenderSettings:
     """How to render.
 
-    integrator: "auto" (chosen from the scene's effects), "direct" or "path".
+    integrator: "auto" (chosen from the scene's effects), "direct", "path" or "volpath".
     spp: samples per pixel when no sample range is given. max_depth: maximum bounces.
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth.
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
@@ -113,8 +118,8 @@ class RenderSettings:
     batch_paths: int = 1 << 16
 
     def __post_init__(self):
-        if self.integrator not in ("auto", "direct", "path"):
-            raise ValueError(f"integrator must be auto, direct or path, got {self.integrator!r}")
+        if self.integrator not in ("auto", "direct", "path", "volpath"):
+            raise ValueError(f"integrator must be auto, direct, path or volpath, got {self.integrator!r}")
         if self.strategy not in ("mis", "light", "bsdf"):
             raise ValueError(f"strategy must be mis, light or bsdf, got {self.strategy!r}")
         if self.heuristic not in ("power", "balance"):
@@ -123,28 +128,33 @@ class RenderSettings:
             raise ValueError("spp, threads and batch_paths must be >= 1; max_depth, rr_depth >= 0")
 
 
-def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False) -> str:
-    """The integrator covering ``effects`` (a set of effect names) and nothing more.
+def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False,
+                      glossy: bool = False) -> str:
+    """The cheapest integrator covering ``effects`` (a set of effect names) and nothing more.
 
-    ``auto``: "direct" unless interreflection or caustics are needed, then "path". A requested
-    integrator that cannot reach an effect raises ValueError naming the effect, as do ``media``
-    and caustics with point/spot/directional lights (unreachable by any integrator here).
+    ``auto``: "volpath" when media are needed or the scene has GGX materials (``glossy``: the
+    compiled kernels do not shade them), else "direct" unless interreflection or caustics are
+    needed, then "path". A requested integrator that cannot reach an effect (or shade a glossy
+    material) raises ValueError naming it, as do caustics with point/spot/directional lights
+    (unreachable by every integrator here: no light tracing yet).
     """
     eff = frozenset(effects) & _TRANSPORT
-    if "media" in eff:
-        raise ValueError("effect 'media' is not reachable by the path tracer yet (no participating media)")
+    if glossy and requested in ("direct", "path"):
+        raise ValueError(f"integrator '{requested}' cannot shade glossy (GGX) materials; use 'volpath' or 'auto'")
     if "caustics" in eff and has_delta_lights:
         raise ValueError("effect 'caustics' with point/spot/directional lights is unreachable by a path "
                          "tracer (a delta light seen through a delta BSDF); use area lights or drop "
                          "'caustics' from the scene's effects")
     if requested == "auto":
+        if "media" in eff or glossy:
+            return "volpath"
         return "path" if eff & {"interreflection", "caustics"} else "direct"
     if requested not in INTEGRATOR_EFFECTS:
         raise ValueError(f"unknown integrator {requested!r}; known: auto, {', '.join(INTEGRATOR_EFFECTS)}")
     missing = sorted(eff - INTEGRATOR_EFFECTS[requested])
     if missing:
         raise ValueError(f"integrator '{requested}' cannot reach effect '{missing[0]}' "
-                         f"(needed: {sorted(eff)}); use 'path' or 'auto'")
+                         f"(needed: {sorted(eff)}); use 'auto'")
     return requested
 
 
@@ -296,7 +306,10 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     t0 = time.perf_counter()
     eff = scene_effects(scene) if effects is None else frozenset(effects)
     ps = prepared if prepared is not None else prepare(scene, threads=settings.threads)
-    integ = choose_integrator(eff, settings.integrator, ps.has_delta_lights)
+    integ = choose_integrator(eff, settings.integrator, ps.has_delta_lights, ps.mats.has_glossy)
+    if integ == "volpath":
+        from .volpath import render_volpath
+        return render_volpath(scene, camera, settings, sample_range, eff, ps)
     caustics = "caustics" in eff
     a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
     if not 0 <= a < b:

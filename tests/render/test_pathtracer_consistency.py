@@ -122,8 +122,9 @@ def test_choose_integrator():
         choose_integrator({"direct", "interreflection"}, "direct")
     with pytest.raises(ValueError, match="caustics"):
         choose_integrator({"caustics"}, "direct")
+    assert choose_integrator({"direct", "media"}) == "volpath"  # issue 8: media reachable by volpath
     with pytest.raises(ValueError, match="media"):
-        choose_integrator({"direct", "media"})
+        choose_integrator({"direct", "media"}, "path")
     with pytest.raises(ValueError, match="caustics"):
         choose_integrator({"direct", "caustics"}, "path", has_delta_lights=True)
 

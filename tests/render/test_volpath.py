@@ -1,0 +1,95 @@
+"""``volpath`` as an integrator of the path tracer: consistency with ``path`` per pixel
+(two-sample Z-tests, Sidak-corrected, tests/render/ptutil.py), the one-number furnace within
+1.0 +- 0.025 (pbrt-v4's integrator test) for every integrator, lossless pruning of caustics
+and of media code, and the effects-driven choice (glossy -> volpath, media -> volpath,
+unreachable -> error). Fixed seeds."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from ptutil import assert_images_agree, image_mean_and_se, quad
+from render.bsdf import DiffuseEmitter
+from render.camera import Camera, Intrinsics
+from render.microfacet import RoughConductor, RoughDielectric
+from render.pathtracer import RenderSettings, choose_integrator, prepare, render
+from render.poses import look_at
+from render.scene import Dielectric, Emissive, Lambertian, Medium, Scene, SceneObject
+from render.volpath import volpath_context
+
+
+def test_volpath_agrees_with_path_on_cornell(cornell, cornell_path_reference):
+    sc, ps, cam = cornell
+    r = render(sc, cam, RenderSettings(integrator="volpath", spp=1024, max_depth=6, seed=21), prepared=ps)
+    assert r.integrator == "volpath"
+    assert_images_agree(r, cornell_path_reference)
+
+
+@pytest.mark.parametrize("integrator", ["path", "volpath"])
+def test_furnace_one_number(integrator):
+    """pbrt-v4's test: inside a closed diffuse sphere of albedo 0.5 emitting 0.5, L = 1; every
+    integrator's image mean lies in 1.0 +- 0.025."""
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    sc = Scene("furnace", [SceneObject("s", sphere, DiffuseEmitter(albedo=0.5, radiance=0.5, two_sided=True))])
+    cam = Camera(Intrinsics.from_fov(4, 4, 60.0), np.eye(4), "inside")
+    r = render(sc, cam, RenderSettings(integrator=integrator, spp=256, max_depth=60, seed=22))
+    m, _ = image_mean_and_se(r)
+    assert np.all(np.abs(m - 1.0) < 0.025), m
+
+
+def _glass_scene(material):
+    floor = SceneObject("floor", quad((0, 0, 0), 3, 3), Lambertian(0.6))
+    ball = trimesh.creation.icosphere(2, 0.5)
+    ball.apply_translation([0, 0, 0.8])
+    light = SceneObject("light", quad((0, 0, 3.0), 0.4, 0.4, normal_sign=-1), Emissive(np.full(3, 20.0)))
+    return Scene("glass", [floor, SceneObject("ball", ball, material), light])
+
+
+def _cam():
+    return Camera(Intrinsics.from_fov(12, 12, 50.0), look_at(np.array([0, -3.5, 2.5]), np.array([0, 0, 0.5]),
+                                                               np.array([0, 0, 1.0])), "c")
+
+
+def test_caustics_pruning_lossless_in_volpath():
+    """Without 'caustics' in the effects, volpath drops exactly what path drops (glass ball
+    over a floor under an area light): the two pruned renders agree per pixel."""
+    sc = _glass_scene(Dielectric(1.5))
+    eff = frozenset({"direct", "soft_shadows", "specular", "interreflection"})
+    ps = prepare(sc)
+    a = render(sc, _cam(), RenderSettings(integrator="volpath", spp=256, max_depth=5, seed=23), effects=eff, prepared=ps)
+    b = render(sc, _cam(), RenderSettings(integrator="path", spp=1024, max_depth=5, seed=24), effects=eff, prepared=ps)
+    assert_images_agree(a, b, block=2)
+
+
+def test_glossy_scene_reaches_volpath_and_is_finite():
+    """A rough-glass ball and a rough gold floor: auto picks volpath (kernels lack GGX);
+    requesting 'path' is an error; the image is finite; a near-smooth rough dielectric agrees
+    with the smooth one (alpha -> 0 limit, on 2 x 2 blocks)."""
+    sc = _glass_scene(RoughDielectric(alpha=0.3, ior=1.5))
+    sc.objects[0] = SceneObject("floor", quad((0, 0, 0), 3, 3), RoughConductor(alpha=0.4))
+    r = render(sc, _cam(), RenderSettings(spp=16, max_depth=5, seed=25))
+    assert r.integrator == "volpath" and np.all(np.isfinite(r.mean)) and r.mean.max() > 0
+    with pytest.raises(ValueError, match="glossy"):
+        render(sc, _cam(), RenderSettings(integrator="path", spp=1))
+    smooth = _glass_scene(Dielectric(1.5))
+    rough0 = _glass_scene(RoughDielectric(alpha=0.0, ior=1.5))
+    ps = prepare(smooth)
+    a = render(rough0, _cam(), RenderSettings(integrator="volpath", spp=256, max_depth=5, seed=26))
+    b = render(smooth, _cam(), RenderSettings(integrator="path", spp=1024, max_depth=5, seed=27), prepared=ps)
+    assert_images_agree(a, b, block=2)
+
+
+def test_media_pruning_and_choice(cornell):
+    """No media: volpath builds no media (media code never runs) and auto never picks volpath;
+    media: auto picks volpath, direct / path raise naming 'media'."""
+    sc, ps, cam = cornell
+    assert volpath_context(sc, ps).media is None
+    assert render(sc, cam, RenderSettings(spp=1), prepared=ps).integrator == "path"
+    assert choose_integrator({"direct", "media"}) == "volpath"
+    assert choose_integrator({"direct"}, glossy=True) == "volpath"
+    for req in ("direct", "path"):
+        with pytest.raises(ValueError, match="media"):
+            choose_integrator({"direct", "media"}, req)
+    fog = Scene("fog", list(sc.objects), media=[Medium(trimesh.creation.box([100, 100, 100]), sigma_s=1e-3)])
+    assert render(fog, cam, RenderSettings(spp=1, max_depth=2)).integrator == "volpath"
