@@ -1,0 +1,118 @@
+"""Hard light paths: accuracy per unit time of the integrators on a caustic and a fog scene, and
+the cost of pruning (effects drive the integrator; media code only runs with media).
+
+Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured in one run:
+
+* caustic scene (glass ball on a diffuse floor under a small area light, 48 x 48): RMSE against
+  a long ``path`` reference for ``path`` (compiled kernels) and ``volpath`` (numpy) at
+  increasing spp, with wall times; the same on a fog scene (the floor and ball inside a
+  homogeneous scattering fog, ``volpath`` only: path cannot render media) against a long
+  ``volpath`` reference. bdpt / sppm / pssmlt are not implemented yet (issue 8).
+* pruning: median render time of the no-media scene with ``path`` (what auto picks), with
+  ``volpath`` (what a scene with media would need), and with ``volpath`` given an empty medium
+  (media code running for nothing): ratios show what each pruning saves.
+
+Run: ``.venv/bin/python -m bench.bench_hard_paths`` (``--quick`` for a smoke run).
+"""
+from __future__ import annotations
+
+import csv
+import sys
+import time
+
+import numpy as np
+import trimesh
+
+from bench.common import RESULTS_DIR, median_time, write_result
+from render.camera import Camera, Intrinsics
+from render.pathtracer import RenderSettings, prepare, render
+from render.poses import look_at
+from render.scene import Dielectric, Emissive, Lambertian, Medium, Scene, SceneObject
+
+
+def _quad(z, half, down=False):
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]]) if not down else np.array([[0, 2, 1], [0, 3, 2]])
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def caustic_scene(fog: float = 0.0) -> Scene:
+    """Glass ball (r 0.5) over a floor of albedo 0.6 under a 0.4 x 0.4 area light at z = 3;
+    fog > 0 fills a 6 x 6 x 2.9 box above the floor with sigma_s = fog (albedo 1, g 0.3)."""
+    ball = trimesh.creation.icosphere(3, 0.5)
+    ball.apply_translation([0, 0, 0.8])
+    objs = [SceneObject("floor", _quad(0.0, 3.0), Lambertian(0.6)),
+            SceneObject("ball", ball, Dielectric(1.5)),
+            SceneObject("light", _quad(3.0, 0.2, down=True), Emissive(np.full(3, 100.0)))]
+    media = []
+    if fog > 0:
+        box = trimesh.creation.box([6.0, 6.0, 2.9])
+        box.apply_translation([0, 0, 1.46])
+        media = [Medium(box, sigma_s=fog, g=0.3)]
+    return Scene("caustic" if fog == 0 else "fog", objs, media=media)
+
+
+def camera(size: int) -> Camera:
+    return Camera(Intrinsics.from_fov(size, size, 45.0),
+                  look_at(np.array([0, -3.2, 2.2]), np.array([0, 0, 0.4]), np.array([0, 0, 1.0])), "c")
+
+
+def _rmse(a, b):
+    return float(np.sqrt(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
+
+
+def main(quick: bool = False) -> None:
+    size = 24 if quick else 48
+    ref_spp = 256 if quick else 4096
+    spps = [4, 16] if quick else [4, 16, 64, 256]
+    cam = camera(size)
+    rows, figs = [], {}
+    t0 = time.perf_counter()
+    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", ["path", "volpath"]),
+                                              ("fog", caustic_scene(0.4), "volpath", ["volpath"])):
+        ps = prepare(sc)
+        ts = time.perf_counter()
+        ref = render(sc, cam, RenderSettings(integrator=ref_integ, spp=ref_spp, max_depth=8, seed=999), prepared=ps)
+        figs[f"{scene_name}_reference"] = {"integrator": ref_integ, "spp": ref_spp,
+                                           "time_s": round(time.perf_counter() - ts, 2)}
+        for integ in integs:
+            for spp in spps:
+                ts = time.perf_counter()
+                r = render(sc, cam, RenderSettings(integrator=integ, spp=spp, max_depth=8, seed=spp), prepared=ps)
+                dt = time.perf_counter() - ts
+                rows.append({"scene": scene_name, "integrator": integ, "spp": spp, "time_s": round(dt, 4),
+                             "rmse": _rmse(r.mean, ref.mean)})
+    # equal-time comparison on the caustic scene: RMSE interpolated in log-log at a common time
+    cau = {i: [(r["time_s"], r["rmse"]) for r in rows if r["scene"] == "caustic" and r["integrator"] == i]
+           for i in ("path", "volpath")}
+    t_common = min(max(t for t, _ in v) for v in cau.values())
+    at = {i: float(np.exp(np.interp(np.log(t_common), np.log([t for t, _ in v]), np.log([e for _, e in v]))))
+          for i, v in cau.items()}
+    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "rmse_ratio_volpath_over_path": at["volpath"] / at["path"]}
+    # pruning: no media -> path; volpath with no media; volpath with an empty (sigma 0) medium
+    sc = caustic_scene()
+    ps = prepare(sc)
+    st = RenderSettings(spp=8 if quick else 32, max_depth=8, seed=1)
+    empty = caustic_scene()
+    empty.media = [Medium(trimesh.creation.box([6.0, 6.0, 2.9]), sigma_s=0.0)]
+    pse = prepare(empty)
+    reps = 3 if quick else 5
+    t_path, _ = median_time(lambda: render(sc, cam, st, prepared=ps), repeats=reps)
+    t_vol, _ = median_time(lambda: render(sc, cam, RenderSettings(**{**st.__dict__, "integrator": "volpath"}),
+                                          prepared=ps), repeats=reps)
+    t_empty, _ = median_time(lambda: render(empty, cam, st, prepared=pse), repeats=reps)
+    figs["pruning"] = {"path_s": t_path, "volpath_no_media_s": t_vol, "volpath_empty_medium_s": t_empty,
+                       "volpath_over_path": t_vol / t_path, "empty_medium_over_no_media": t_empty / t_vol,
+                       "spp": st.spp, "size": size}
+    figs["rmse_time"] = rows
+    figs["total_s"] = round(time.perf_counter() - t0, 1)
+    RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+    with open(RESULTS_DIR / "hard_paths_rmse_time.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=["scene", "integrator", "spp", "time_s", "rmse"])
+        w.writeheader()
+        w.writerows(rows)
+    write_result("hard_paths", figs)
+
+
+if __name__ == "__main__":
+    main(quick="--quick" in sys.argv)
