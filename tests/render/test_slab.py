@@ -419,3 +419,24 @@ def test_vq_slab_set_round_trip(tmp_path):
     v1.codebook = shared + np.float32(1e-4)  # not representable in float16
     with pytest.raises(ValueError, match="float16"):
         save_slabs(tmp_path / "bad", [LightSlab(g1, v1)])
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_hard_case_cameras_along_the_planes_and_beyond_st_compiled_path(mode):
+    """The compiled camera path on the hard cases: a camera on the uv plane looking along e_s (its
+    centre column is exactly parallel to the planes, half its rays point backwards), and a camera
+    beyond the st plane looking back at it. Finite; rays that cannot cross get the background; the
+    same as the per-ray numpy path."""
+    g = make_geometry((8, 8, 32, 32))
+    slab = analytic_slab(g, 0.7, texture_wavy)
+    bg = (0.1, 0.2, 0.3)
+    along = Camera(Intrinsics(33, 9, 3.1, 3.1, 16.5, 4.5), look_at([0, 0, 0], [1, 0, 0], [0, -1, 0]), "along")
+    beyond = Camera(Intrinsics(16, 16, 12.0, 12.0, 8.0, 8.0), look_at([0, 0, 1.5], [0, 0, 0], [0, -1, 0]), "beyond")
+    for cam in (along, beyond):
+        img = render_view([slab], cam, mode, background=bg)
+        assert np.all(np.isfinite(img))
+        np.testing.assert_allclose(img.reshape(-1, 3), render_rays([slab], *cam.pixel_rays(), mode=mode, background=bg),
+                                   atol=1e-5)
+    h = slab_coordinates(g, *along.pixel_rays())
+    assert 0 < h.valid.sum() and not h.valid.reshape(9, 33)[:, 16].any()  # the parallel column misses
+    np.testing.assert_array_equal(render_view([slab], beyond, mode, background=bg), np.broadcast_to(np.float32(bg), (16, 16, 3)))
