@@ -8,11 +8,13 @@ import numpy as np
 import trimesh
 
 from render.camera import Camera
+from render.microfacet import RoughConductor, RoughDielectric
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight,
                           Scene, SceneObject, SpotLight)
 
 from .layouts import layout_cameras, make_intrinsics
-from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, SceneSpec,
+from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, RoughConductorSpec,
+                   RoughDielectricSpec, SceneSpec,
                    ShapeSpec, SpecError, SpotLightSpec, load_spec)
 from .textures import load_texture
 
@@ -101,6 +103,10 @@ def _material(spec, textures: dict[str, np.ndarray]):
         return Dielectric(spec.ior)
     if isinstance(spec, EmissiveSpec):
         return Emissive(np.array(spec.radiance), spec.two_sided)
+    if isinstance(spec, RoughConductorSpec):
+        return RoughConductor(spec.alpha, np.array(spec.eta), np.array(spec.k))
+    if isinstance(spec, RoughDielectricSpec):
+        return RoughDielectric(spec.alpha, spec.ior)
     raise TypeError(spec)
 
 

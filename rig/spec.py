@@ -115,7 +115,23 @@ class EmissiveSpec(_Strict):
         return _non_negative(v, "radiance")
 
 
-MaterialSpec = Annotated[Union[LambertianSpec, MirrorSpec, DielectricSpec, EmissiveSpec], Field(discriminator="type")]
+class RoughConductorSpec(_Strict):
+    """GGX metal (render.microfacet.RoughConductor): roughness alpha, complex IOR eta + i k per RGB."""
+    type: Literal["rough_conductor"]
+    alpha: float = Field(0.2, ge=0, le=1)
+    eta: Rgb = (0.143, 0.374, 1.442)
+    k: Rgb = (3.983, 2.385, 1.603)
+
+
+class RoughDielectricSpec(_Strict):
+    """GGX frosted glass (render.microfacet.RoughDielectric)."""
+    type: Literal["rough_dielectric"]
+    alpha: float = Field(0.2, ge=0, le=1)
+    ior: float = Field(1.5, gt=0)
+
+
+MaterialSpec = Annotated[Union[LambertianSpec, MirrorSpec, DielectricSpec, EmissiveSpec, RoughConductorSpec,
+                               RoughDielectricSpec], Field(discriminator="type")]
 
 
 # ---------------------------------------------------------------- shapes
