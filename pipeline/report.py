@@ -86,7 +86,7 @@ def _log_ticks(lo: float, hi: float) -> list[float]:
             t = m * 10.0 ** e
             if lo <= t <= hi:
                 ticks.append(t)
-    return ticks or [lo, hi]
+    return ticks if len(ticks) >= 2 else [t for t in _nice_ticks(lo, hi, 4) if lo <= t <= hi]
 
 
 def _fmt_tick(v: float) -> str:
@@ -94,7 +94,7 @@ def _fmt_tick(v: float) -> str:
         return "0"
     if abs(v) >= 1000 or abs(v) < 0.01:
         return f"{v:.0e}".replace("e+0", "e").replace("e-0", "e-")
-    return f"{v:g}"
+    return f"{v:.3g}"
 
 
 def svg_plot(series: list[Series], xlabel: str, ylabel: str, title: str = "", logx: bool = False,
@@ -150,7 +150,7 @@ def svg_plot(series: list[Series], xlabel: str, ylabel: str, title: str = "", lo
             out.append(f'<line x1="{L}" y1="{Y(h):.1f}" x2="{L + W}" y2="{Y(h):.1f}" stroke="#555" '
                        f'stroke-dasharray="5 4"/><text x="{L + W - 4}" y="{Y(h) - 4:.1f}" text-anchor="end" '
                        f'fill="#555">{e(label)}</text>')
-    legend_y = T + 4
+    legend_y, placed = T + 4, []  # placed: label boxes (x0, y0, x1, y1); overlapping labels are left to tooltips
     for i, s in enumerate(series):
         c = s.colour or PALETTE[i % len(PALETTE)]
         labels = s.labels or [""] * len(s.x)
@@ -165,7 +165,10 @@ def svg_plot(series: list[Series], xlabel: str, ylabel: str, title: str = "", lo
             out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{c}" stroke="white" stroke-width="0.8">'
                        f'<title>{e(tip)}</title></circle>')
             if s.annotate and lab:
-                out.append(f'<text x="{X(x) + 6:.1f}" y="{Y(y) - 5:.1f}" fill="{c}">{e(lab)}</text>')
+                box = (X(x) + 6, Y(y) - 15, X(x) + 6 + 6.2 * len(lab), Y(y) - 3)
+                if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in placed):
+                    placed.append(box)
+                    out.append(f'<text x="{box[0]:.1f}" y="{Y(y) - 5:.1f}" fill="{c}">{e(lab)}</text>')
         out.append(f'<rect x="{L + W + 12}" y="{legend_y}" width="10" height="10" fill="{c}"/>'
                    f'<text x="{L + W + 27}" y="{legend_y + 9}">{e(s.name[:28])}</text>')
         legend_y += 16
@@ -290,7 +293,7 @@ tr.best td{background:#e8f5e9;font-weight:bold} tr.failed td{color:#b00}
 .glance{background:#f6f8fa;border:1px solid #d0d7de;padding:10px 16px;border-radius:6px;font-size:15px}
 .views{overflow-x:auto} .grid{border-collapse:collapse} .grid td{border:none;padding:2px;vertical-align:top;text-align:center}
 .grid img{display:block;image-rendering:pixelated} .cap{font-size:11px;color:#555}
-.note{font-size:12px;color:#555} .plots svg{margin:6px 6px 6px 0;border:1px solid #eee}
+.note{font-size:12px;color:#555} .plots svg{margin:6px 6px 6px 0;border:1px solid #eee;max-width:48%;height:auto}
 """
 
 

@@ -1,0 +1,124 @@
+"""The study on the tiny scene with a minimal sweep (2 spp values x 2 integrators, gt and ChArUco
+poses — the latter fails at 128x96 and must be recorded, not fatal — one slab grid point in every
+mode, rebinning on the gt poses): its files, the Pareto flags, what the sweep must show (more
+samples, less error), and that the report embeds its fronts."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.artifacts import BadInput, read_manifest, sha256_file
+from pipeline.report import write_report
+from pipeline.stages.study import PROFILES, StudyConfig, derived_scene, pareto_rows, run_study
+
+from .conftest import write_scene
+from .test_validate import TINY_E2E, tiny_artifacts  # noqa: F401  (the shared session fixture)
+
+MINI = StudyConfig(size_scale=1.0, test_views=0, truth_spp=16, spp=(1, 8), integrators=("direct", "path"),
+                   poses=(("gt", 1.0), ("charuco", 1.0)), slab_grid=((4, 24),), rebin_grid=(4, 24), nerf=())
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    root = tmp_path_factory.mktemp("study")
+    scene = write_scene(root / "scenes", TINY_E2E)
+    out = root / "study"
+    run_study(scene, out, profile="mini", config=MINI, quiet=True)
+    return out
+
+
+def _rows(study, stage):
+    return [r for r in json.loads((study / "study.json").read_text())["rows"] if r["stage"] == stage]
+
+
+def test_study_writes_its_files_and_nothing_else(study):
+    m = read_manifest(study)
+    for rel, digest in m["outputs"].items():
+        assert sha256_file(study / rel) == digest
+    names = set(m["outputs"])
+    assert {"study.csv", "study.json", "pareto.csv", "pareto_reference.svg", "pareto_poses.svg", "pareto_slab.svg",
+            "pareto_end_to_end.svg"} <= names
+    assert not any(n.startswith(".work") for n in names) and not (study / ".work").exists()
+    rows = list(csv.DictReader((study / "study.csv").open()))
+    assert rows and {"stage", "setting", "time_s", "psnr", "pareto"} <= set(rows[0])
+    for f in study.glob("*.svg"):
+        text = f.read_text()
+        assert text.startswith("<svg") and "nan" not in text.lower().replace("nano", "")
+
+
+def test_more_samples_less_error(study):
+    """Path tracer: 8 spp has 1/8 the variance of 1 spp, ideally +9 dB; the 16 spp study reference's
+    own noise (ceiling 43.6 dB) takes some of it. Measured 2026-11-22: direct 31.19 -> 38.80 dB
+    (+7.6), path 30.99 -> 38.59 dB (+7.6); the test asks for +3 dB."""
+    pt = {(r["family"], r["spp"]): r for r in _rows(study, "reference") if r["status"] == "ok" and r["family"] != "truth"}
+    for integ in ("direct", "path"):
+        assert pt[(integ, 8)]["psnr"] > pt[(integ, 1)]["psnr"] + 3.0, (integ, pt[(integ, 8)], pt[(integ, 1)])
+
+
+def test_failed_points_are_recorded_not_fatal(study):
+    poses = {r["setting"]: r for r in _rows(study, "poses")}
+    assert poses["gt"]["status"] == "ok" and poses["gt"]["rotation_error_deg"] == 0.0
+    assert poses["charuco"]["status"] == "failed" and "charuco" in poses["charuco"]["reason"]
+    assert [r for r in _rows(study, "slab") if r.get("poses") == "gt"], "slab rebinned on the gt poses is missing"
+
+
+def test_pareto_flags_are_the_fronts(study):
+    doc = json.loads((study / "study.json").read_text())
+    for stage in ("reference", "poses", "slab", "end_to_end"):
+        rows = [r for r in doc["rows"] if r["stage"] == stage and r["status"] == "ok"]
+        front = [r for r in rows if r["pareto"]]
+        assert front and {r["setting"] for r in front} == set(doc["fronts"][stage])
+        acc = "rotation_error_deg" if stage == "poses" else "psnr"
+        cost = "end_to_end_s" if stage == "end_to_end" else "time_s"
+        sign = -1 if stage == "poses" else 1
+        best = max(rows, key=lambda r: (sign * r[acc], -r[cost]))
+        assert best["pareto"]  # the most accurate (cheapest among ties) is always on the front
+    for r in (r for r in doc["rows"] if r["stage"] == "end_to_end"):
+        assert r["end_to_end_s"] >= r["time_s"]
+
+
+def test_pareto_rows_handles_missing_values():
+    rows = [{"time_s": 1.0, "psnr": 20.0}, {"time_s": 2.0, "psnr": None}, {"time_s": 3.0, "psnr": 25.0},
+            {"time_s": 4.0, "psnr": 24.0}]
+    assert pareto_rows(rows) == [True, False, True, False]
+    assert pareto_rows(rows, lower_is_better=True) == [True, False, False, False]
+
+
+def test_derived_scene_scales_the_images_and_cuts_the_test_rings(tmp_path):
+    data = json.loads(json.dumps(TINY_E2E))
+    data["textures"]["photo"] = {"image": "photo.png"}
+    data["cameras"]["test"][0]["ring"]["count"] = 5
+    src = write_scene(tmp_path / "src", data)
+    path = derived_scene(src, tmp_path / "work", 0.5, 2)
+    d = yaml.safe_load(path.read_text())
+    assert (d["cameras"]["intrinsics"]["width"], d["cameras"]["intrinsics"]["height"]) == (64, 48)
+    assert d["cameras"]["test"][0]["ring"]["count"] == 2
+    assert d["cameras"]["train"] == TINY_E2E["cameras"]["train"]
+    assert d["textures"]["photo"]["image"] == str((tmp_path / "src" / "photo.png").resolve())
+
+
+def test_bad_profile_and_scene_are_bad_input(tmp_path):
+    from rig.spec import SpecError
+
+    with pytest.raises(BadInput, match="profile"):
+        run_study("turntable", tmp_path / "o", profile="slow")
+    with pytest.raises(SpecError):
+        run_study(tmp_path / "none.yaml", tmp_path / "o")
+    assert not (tmp_path / "o").exists()
+    assert set(PROFILES) == {"quick", "full"}
+
+
+def test_report_embeds_the_study(study, tiny_artifacts, tmp_path):  # noqa: F811
+    art = tmp_path / "tiny"
+    shutil.copytree(tiny_artifacts, art)
+    shutil.copytree(study, art / "study")
+    text = write_report(art).read_text()
+    assert text.count("<svg") >= 1 + len(list(study.glob("*.svg")))
+    assert "Study: Pareto-optimal settings" in text and "light slab: resolution x interpolation" in text
+    assert np.isfinite(json.loads((study / "study.json").read_text())["psnr_noise_ceiling"])
