@@ -111,7 +111,7 @@ class FastConfig:
     points_per_batch: int = 1 << 16
     min_rays: int = 256
     max_rays: int = 8192
-    curve_pixels: int | None = 2048
+    curve_pixels: int | None = 1024
     render_full_res: bool = True
     background: float = 0.0
 
