@@ -102,16 +102,18 @@ def plot_curves(path: Path, curves: dict[str, list[dict]], title: str, size=(900
 
 
 def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=None, downsample: int = 4,
-              seed: int = 0, eval_every_s: float = 30.0, log=print) -> dict:
+              seed: int = 0, eval_every_s: float = 30.0, log=print, clock: str = "wall") -> dict:
     """Train every run for ``minutes`` of training time; write curves.csv, curves.png,
-    summary.json into ``out``; return the summary {label: {model, poses, final_psnr, steps}}."""
+    summary.json into ``out``; return the summary {label: {model, poses, final_psnr, steps}}.
+    clock: "wall" or "cpu" (see :class:`recon.nerf.train.TrainConfig`)."""
     out = Path(out)
     curves, summary = {}, {}
     rows = []
     for run in runs:
         data = load_data(capture_dir, run.poses, reference_dir, downsample)
         log(f"study: {run.label} ({run.model}, poses {data.poses}) for {minutes} min")
-        res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s))
+        res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s,
+                                      clock=clock))
         curves[run.label] = res.curve
         summary[run.label] = {"model": run.model, "poses": data.poses, "final_psnr": res.curve[-1]["psnr"],
                               "steps": res.steps, "train_s": round(res.train_s, 1)}
@@ -128,7 +130,8 @@ def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=N
     scale = data.test[0].camera.intrinsics
     plot_curves(out / "curves.png", curves, f"NeRF held-out PSNR vs time, {scale.width}x{scale.height}")
     with atomic_path(out / "summary.json") as tmp:
-        Path(tmp).write_text(json.dumps({"minutes": minutes, "downsample": downsample, "runs": summary}, indent=2))
+        Path(tmp).write_text(json.dumps({"minutes": minutes, "clock": clock, "downsample": downsample,
+                                         "runs": summary}, indent=2))
     return summary
 
 
@@ -141,9 +144,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reference", type=Path)
     ap.add_argument("--downsample", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--clock", default="wall", choices=["wall", "cpu"])
+    ap.add_argument("--eval-every", type=float, default=30.0, help="training seconds between curve points")
     a = ap.parse_args(argv)
     runs = [parse_run(r) for r in (a.run or ["fast", "vanilla", "vanilla_noview", "vanilla_nope"])]
-    summary = run_study(a.capture_dir, runs, a.minutes, a.out, a.reference, a.downsample, a.seed)
+    summary = run_study(a.capture_dir, runs, a.minutes, a.out, a.reference, a.downsample, a.seed,
+                        a.eval_every, clock=a.clock)
     print(json.dumps(summary, indent=2))
     return 0
 
