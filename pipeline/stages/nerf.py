@@ -9,9 +9,12 @@ Layout (DESIGN.md)::
     nerf/<model>/curve.csv              held-out PSNR against training time
     nerf/<model>/manifest.json
 
-Metrics are computed at the working scale (the capture area-averaged by ``downsample``, 160x120
-for the default scene), where the model is trained; models that render at full resolution
-(``fast``) also report ``psnr_full`` / ``ssim_full`` at the capture's resolution. The reference is
+Metrics are computed at the working scale (the capture area-averaged by ``downsample``, by default
+the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene), where the
+model is trained. Renders are written at the capture's resolution as DESIGN.md asks, by repeating
+each working-scale pixel (nearest); a model config with ``render_full_res=True`` renders every
+pixel instead and also reports ``psnr_full`` / ``ssim_full`` (costly: 9.8M rays for 8 views at
+1280x960). The reference is
 ``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the
 capture's own held-out images (exact for direct-only scenes rendered by the rasterizer).
 
@@ -57,7 +60,8 @@ def _resume_file(out: Path) -> Path:
 
 
 def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: float, out: Path,
-             reference_dir: Path | None = None, downsample: int = 4, seed: int = 0, max_steps: int | None = None,
+             reference_dir: Path | None = None, downsample: int | None = None, seed: int = 0,
+             max_steps: int | None = None,
              resume: bool = False, quiet: bool = False, clock: str = "wall", overrides: dict | None = None) -> dict:
     """Train ``model`` for ``minutes`` of training time on ``capture_dir`` (poses from
     ``poses_dir``/cameras.json when given) and write ``out`` atomically; returns the manifest.
@@ -81,6 +85,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
     except NerfInputError as exc:
         raise BadInput(str(exc)) from None
     overrides = dict(overrides or {})
+    downsample = data.downsample
     cfg = TrainConfig(model=model, minutes=minutes, max_steps=max_steps, seed=seed, clock=clock,
                       overrides=tuple(sorted(overrides.items())))
     model_cfg = replace(MODELS[model][1], **overrides)

@@ -29,7 +29,20 @@ from render.camera_io import read_cameras_json
 from render.image_io import read_exr
 
 __all__ = ["NerfInputError", "View", "NerfData", "area_downsample", "scene_box", "camera_rays", "load_data",
-           "stack_rays"]
+           "stack_rays", "auto_downsample", "WORKING_WIDTH"]
+
+#: the default working width: 160 pixels (160x120 for 4:3 captures) trains in minutes on 2 cores
+WORKING_WIDTH = 160
+
+
+def auto_downsample(width: int, height: int, target_width: int = WORKING_WIDTH) -> int:
+    """The largest integer factor dividing both sides that keeps the width >= ``target_width``
+    (1 when the image is already that small): 640x480 -> 4, 1280x960 -> 8."""
+    best = 1
+    for f in range(1, width // max(target_width, 1) + 1):
+        if width % f == 0 and height % f == 0:
+            best = f
+    return best
 
 
 class NerfInputError(ValueError):
@@ -153,17 +166,20 @@ def _view(name: str, cam: Camera, img: np.ndarray, downsample: int, where: Path,
     return View(name, small, area_downsample(img, factor), cam, img if keep_full else None)
 
 
-def load_data(capture_dir, poses_dir=None, reference_dir=None, downsample: int = 4) -> NerfData:
+def load_data(capture_dir, poses_dir=None, reference_dir=None, downsample: int | None = None) -> NerfData:
     """Read the views of a capture folder (see the module docstring).
 
     capture_dir: ``artifacts/<scene>/capture``; poses_dir: ``artifacts/<scene>/poses/<method>``
     or None (ground truth); reference_dir: a folder with ``linear/<view>.exr`` of the held-out
-    views or None (the capture's test images); downsample: integer factor >= 1.
+    views or None (the capture's test images); downsample: integer factor >= 1, or None for
+    :func:`auto_downsample` (working width about 160 pixels).
     """
-    if int(downsample) != downsample or downsample < 1:
-        raise NerfInputError(f"downsample must be an integer >= 1, got {downsample}")
     capture_dir = Path(capture_dir)
     cams, splits = _read_cameras(capture_dir / "cameras.json")
+    if downsample is None:
+        downsample = auto_downsample(cams[0].intrinsics.width, cams[0].intrinsics.height)
+    if int(downsample) != downsample or downsample < 1:
+        raise NerfInputError(f"downsample must be an integer >= 1, got {downsample}")
     gt = {c.name: c for c in cams}
     train_names = [c.name for c, s in zip(cams, splits) if s == "train"]
     test_names = [c.name for c, s in zip(cams, splits) if s == "test"]

@@ -75,7 +75,7 @@ class VanillaConfig:
     batch_rays: int = 1024
     #: held-out pixels per view used for the PSNR curve during training (None = whole images)
     curve_pixels: int | None = 1024
-    #: render held-out views at the training resolution and upsample (full res is ~40 min here)
+    #: render held-out views at the working resolution and repeat pixels up to the capture's size
     render_full_res: bool = False
     background: float = 0.0
 
@@ -112,7 +112,7 @@ class FastConfig:
     min_rays: int = 256
     max_rays: int = 8192
     curve_pixels: int | None = 1024
-    render_full_res: bool = True
+    render_full_res: bool = False
     background: float = 0.0
 
 

@@ -101,7 +101,7 @@ def plot_curves(path: Path, curves: dict[str, list[dict]], title: str, size=(900
         img.save(tmp, format="PNG")
 
 
-def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=None, downsample: int = 4,
+def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=None, downsample: int | None = None,
               seed: int = 0, eval_every_s: float = 30.0, log=print, clock: str = "wall") -> dict:
     """Train every run for ``minutes`` of training time; write curves.csv, curves.png,
     summary.json into ``out``; return the summary {label: {model, poses, final_psnr, steps}}.
@@ -130,7 +130,7 @@ def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=N
     scale = data.test[0].camera.intrinsics
     plot_curves(out / "curves.png", curves, f"NeRF held-out PSNR vs time, {scale.width}x{scale.height}")
     with atomic_path(out / "summary.json") as tmp:
-        Path(tmp).write_text(json.dumps({"minutes": minutes, "clock": clock, "downsample": downsample,
+        Path(tmp).write_text(json.dumps({"minutes": minutes, "clock": clock, "downsample": data.downsample,
                                          "runs": summary}, indent=2))
     return summary
 
@@ -142,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--run", action="append", default=None, help="[label=]model[@poses_dir], repeatable")
     ap.add_argument("--reference", type=Path)
-    ap.add_argument("--downsample", type=int, default=4)
+    ap.add_argument("--downsample", type=int, default=None, help="default: working width about 160 px")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clock", default="wall", choices=["wall", "cpu"])
     ap.add_argument("--eval-every", type=float, default=30.0, help="training seconds between curve points")

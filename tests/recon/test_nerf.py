@@ -285,3 +285,12 @@ def test_study_parses_runs_and_plots(tmp_path):
     plot_curves(tmp_path / "c.png", curves, "t")
     img = np.asarray(Image.open(tmp_path / "c.png"))
     assert img.shape[2] == 3 and (img != 255).any()
+
+
+def test_auto_downsample_targets_a_160_pixel_width():
+    from recon.nerf.data import auto_downsample
+
+    assert auto_downsample(640, 480) == 4
+    assert auto_downsample(1280, 960) == 8
+    assert auto_downsample(32, 24) == 1
+    assert auto_downsample(1000, 750) == 5  # 200x150: the largest common divisor keeping >= 160
