@@ -3,7 +3,7 @@
 Set-up (not timed): the default turntable scene is captured at its own size into a temporary
 folder. Timed:
 
-* ``build_direct_s``: the stage's default slab set (8 ring slabs, uv_res 16, st_res 192) acquired
+* ``build_direct_s``: the stage's default slab set (8 ring slabs, uv_res 8, st_res 384) acquired
   directly with the rig's rasterizer (sheared cameras), assembled into memory-mapped arrays.
 * ``build_rebin_s``: the same layout rebinned from the 48 captured train views and their depth.
 * ``compress_s``: vector quantization of the direct slab set (recon.slab.compress_slabs, defaults).

@@ -34,8 +34,8 @@ from .slab import SlabStageConfig, _cameras, _read_image, build_slabs, evaluate_
 
 __all__ = ["run_slab_study", "svg_plot", "DEFAULT_UV", "DEFAULT_ST"]
 
-DEFAULT_UV = (8, 16, 24)
-DEFAULT_ST = (96, 192, 256)
+DEFAULT_UV = (4, 8, 16)
+DEFAULT_ST = (96, 192, 384)
 _COLOURS = {"nearest": "#d62728", "uv": "#ff7f0e", "st": "#9467bd", "quadrilinear": "#1f77b4", "depth": "#2ca02c"}
 
 
