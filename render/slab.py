@@ -394,7 +394,7 @@ def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
         w = w_row
     else:
         w = (w_row[:, :, None] * w_col[:, None, :]).reshape(n, -1)
-    return np.matmul(w[:, None, :], vals)[:, 0]  # (N, 1, K) @ (N, K, 3): faster than einsum here
+    return np.einsum("nk,nkc->nc", w, vals)
 
 
 def lookup(slab: LightSlab, hits_or_coords, mode: str = "quadrilinear") -> np.ndarray:
