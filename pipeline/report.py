@@ -293,6 +293,7 @@ tr.best td{background:#e8f5e9;font-weight:bold} tr.failed td{color:#b00}
 .glance{background:#f6f8fa;border:1px solid #d0d7de;padding:10px 16px;border-radius:6px;font-size:15px}
 .views{overflow-x:auto} .grid{border-collapse:collapse} .grid td{border:none;padding:2px;vertical-align:top;text-align:center}
 .grid img{display:block;image-rendering:pixelated} .cap{font-size:11px;color:#555}
+.grid td.rowcap{width:90px;text-align:right;vertical-align:middle;padding-right:6px}
 .note{font-size:12px;color:#555} .plots svg{margin:6px 6px 6px 0;border:1px solid #eee;max-width:48%;height:auto}
 """
 
@@ -402,11 +403,11 @@ def _views_section(root: Path, validate_dir: Path, models: dict, views: list[str
                     cells.append(f'<td><img src="{uri}" alt="{e(c[0])} {e(what)} {e(v)}" width="{thumb}"></td>')
                 else:
                     cells.append("<td></td>")
-            rows.append(f'<tr>{"".join(cells)}<td class="cap">{e(what)}</td></tr>')
+            rows.append(f'<tr><td class="cap rowcap">{e(what)}</td>{"".join(cells)}</tr>')
         head = "".join(f'<td class="cap">{e(c[0])}'
                        + (f"<br>{models[c[0]]['per_view'][v]['psnr']:.2f} dB" if c[0] in models
                           and models[c[0]]["per_view"][v]["psnr"] is not None else "") + "</td>" for c in cols)
-        blocks.append(f"<h3>{e(v)}</h3><div class='views'><table class='grid'><tr>{head}</tr>{''.join(rows)}</table></div>")
+        blocks.append(f"<h3>{e(v)}</h3><div class='views'><table class='grid'><tr><td></td>{head}</tr>{''.join(rows)}</table></div>")
     if len(views) > max_views:
         blocks.append(f'<p class="note">{len(views) - max_views} more held-out views are scored in the tables '
                       f'(validate/errors, validate/zmaps hold all of them).</p>')
