@@ -46,7 +46,8 @@ PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e
 @dataclass
 class Series:
     """One series of a plot: points (x, y) with an optional label each (shown beside the point
-    when ``annotate``, always as a tooltip); ``line`` joins the points in x order."""
+    when ``annotate``, always as a tooltip); ``line`` joins the points in the order given (a knob's
+    order, or time order for a training curve)."""
 
     name: str
     x: list[float]
@@ -159,7 +160,7 @@ def svg_plot(series: list[Series], xlabel: str, ylabel: str, title: str = "", lo
         if s.line and len(good) > 1:
             dash = ' stroke-dasharray="6 3"' if s.dashed else ""
             out.append(f'<polyline fill="none" stroke="{c}" stroke-width="1.8"{dash} points="'
-                       + " ".join(f"{X(x):.1f},{Y(y):.1f}" for x, y, _ in sorted(good)) + '"/>')
+                       + " ".join(f"{X(x):.1f},{Y(y):.1f}" for x, y, _ in good) + '"/>')
         for x, y, lab in good:
             tip = f"{s.name}{': ' + lab if lab else ''} ({_fmt_tick(x)}, {y:.3g})"
             out.append(f'<circle cx="{X(x):.1f}" cy="{Y(y):.1f}" r="3.5" fill="{c}" stroke="white" stroke-width="0.8">'

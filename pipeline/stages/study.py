@@ -203,6 +203,9 @@ class _Sweep:
 def _sweep_reference(sw: _Sweep, rig, scene_file: Path, views: list[str], truth, cfg: StudyConfig, seed: int) -> None:
     from .reference import run_reference
 
+    # untimed warm-up: the first render in a process pays one-off costs (compilation, caches)
+    run_reference(rig, scene_file, sw.work / "pt" / "warmup", spp=1, seed=seed, quiet=True)
+    shutil.rmtree(sw.work / "pt" / "warmup", ignore_errors=True)
     for integ in cfg.integrators:
         for spp in cfg.spp:
             out = sw.work / "pt" / f"{integ}_{spp}"
@@ -339,7 +342,7 @@ def _front_svg(rows: list[dict], title: str, ylabel: str, accuracy: str, cost: s
     families = sorted({r["family"] for r in rows})
     series = [Series(f, [r[cost] for r in rows if r["family"] == f], [r[accuracy] for r in rows if r["family"] == f],
                      [r["setting"] for r in rows if r["family"] == f], line=len(families) < 8) for f in families]
-    front = [r for r in rows if r.get("pareto")]
+    front = sorted((r for r in rows if r.get("pareto")), key=lambda r: r[cost])
     if front:
         series.append(Series("Pareto front", [r[cost] for r in front], [r[accuracy] for r in front],
                              [r["setting"] for r in front], colour="#000000", line=True, dashed=True, annotate=True))
