@@ -204,7 +204,11 @@ def test_charuco_corners_and_poses_follow_the_pixel_and_board_conventions():
 def stage_runs(small_capture, tmp_path_factory):
     """Run gt, colmap and charuco once on the small capture; share the folders."""
     root = tmp_path_factory.mktemp("poses")
-    return {m: (root / m, run_poses(small_capture, m, root / m, quiet=True)) for m in ("gt", "colmap", "charuco")}
+    # At 400x300 the board's markers are too small in the 30-degree ring's views that see it past
+    # the box (4 of 20): let charuco's registered-fraction gate pass the 16 it finds.
+    loose = PosesConfig(gates=QualityGates(min_registered_fraction=0.75))
+    return {m: (root / m, run_poses(small_capture, m, root / m, loose if m == "charuco" else PosesConfig(), quiet=True))
+            for m in ("gt", "colmap", "charuco")}
 
 
 def check_outputs(out: Path, capture: Path, expected: list[str]) -> list[Camera]:
@@ -263,7 +267,9 @@ def test_charuco_is_metric_and_reports_unseen_views(stage_runs, small_capture):
 
 
 def test_colmap_self_calibration_recovers_the_focal_length(small_capture, tmp_path):
-    cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=False))
+    # One thread: COLMAP's multi-threaded RANSAC and bundle adjustment depend on scheduling, and
+    # on a loaded CI machine one run folded test_000 onto a train view at this small size.
+    cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=False, num_threads=1))
     m = run_poses(small_capture, "colmap", tmp_path / "selfcal", cfg, quiet=True)["metrics"]
     # measured: 20/20 views, 0.21 deg mean, focal off by 0.3 % from a 1.2 x width initial guess (+18 %)
     assert m["known_intrinsics"] is False and m["registered_fraction"] == 1.0
