@@ -45,7 +45,7 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               spp: int = typer.Option(64, help="samples per pixel"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
               views: str = typer.Option("test", help="test (held-out views) | all | scene (the scene's own camera)"),
-              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path"),
+              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
@@ -99,8 +99,11 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../slab)"),
          method: str = typer.Option("direct", help="direct (sheared cameras through the rig) | rebin (from the captures)"),
          mode: str = typer.Option("depth", help="nearest | uv | st | quadrilinear | depth"),
-         uv_res: int = typer.Option(16, help="uv samples per side"),
-         st_res: int = typer.Option(192, help="st samples per side"),
+         layout: str = typer.Option("ring", help="ring (slabs around the turntable axis) | box (six faces)"),
+         uv_res: int = typer.Option(8, help="uv samples along a uv quad's longer side"),
+         st_res: int = typer.Option(384, help="st samples along an st quad's longer side"),
+         compress: bool = typer.Option(True, "--compress/--no-compress",
+                                       help="also vector-quantize the slabs and score the views from them"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
          quiet: bool = QUIET):
     """Build light slabs from a capture; render and score its held-out views."""
@@ -109,13 +112,83 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     from .stages.slab import SlabStageConfig, run_slab
 
     try:
-        cfg = SlabStageConfig(method=method, mode=mode, layout=LayoutConfig(uv_res=uv_res, st_res=st_res))
+        cfg = SlabStageConfig(method=method, mode=mode, compress=compress,
+                              layout=LayoutConfig(kind=layout, uv_res=uv_res, st_res=st_res))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "slab"
     m = run_slab(capture_dir, poses, out, cfg, reference, quiet)
     mt = m["metrics"]
     typer.echo(f"slab: {mt['mode']} PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} -> {out}")
+
+
+@app.command()
+def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
+         poses: Optional[Path] = typer.Option(None, help="a poses folder (default: the capture's own cameras)"),
+         model: str = typer.Option("fast", help="fast (factored grid + tiny MLP) | vanilla (Mildenhall et al.) | "
+                                                "no_view_dependence | no_positional_encoding"),
+         minutes: float = typer.Option(10.0, help="training budget in minutes of wall time"),
+         out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../nerf/<model>)"),
+         reference: Optional[Path] = typer.Option(None, help="reference folder to score against "
+                                                            "(default: the capture's held-out images)"),
+         downsample: Optional[int] = typer.Option(None, help="train at capture size / N (default: ~160 px wide)"),
+         seed: int = typer.Option(0, help="training seed"),
+         resume: bool = typer.Option(False, help="continue an interrupted run's checkpoint"),
+         quiet: bool = QUIET):
+    """Train a radiance field from a capture; render and score its held-out views."""
+    from .stages.nerf import run_nerf
+
+    out = out or capture_dir.parent / "nerf" / model
+    m = run_nerf(capture_dir, poses, model, minutes, out, reference, downsample, seed, resume=resume, quiet=quiet)
+    mt = m["metrics"]
+    typer.echo(f"nerf {model}: PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} after {mt['steps']} steps "
+               f"in {mt['train_s']:.0f} s -> {out}")
+
+
+@app.command()
+def validate(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts folder (artifacts/<scene>)"),
+             out: Optional[Path] = typer.Option(None, help="folder (default <artifacts_dir>/validate)"),
+             quiet: bool = QUIET):
+    """Judge every finished model (slab, NeRF, ...) against the reference at the held-out views."""
+    from .stages.validate import run_validate
+
+    from .artifacts import read_json
+
+    out = out or artifacts_dir / "validate"
+    run_validate(artifacts_dir, out, quiet=quiet)
+    models = read_json(out / "metrics.json")["models"]
+    for name, row in models.items():
+        typer.echo(f"validate: {name:24s} PSNR {row['psnr_mean']:6.2f} dB  SSIM {row['ssim_mean']:.4f}  "
+                   f"end to end {row['end_to_end_s']:.0f} s")
+    typer.echo(f"validate: {len(models)} models -> {out}")
+
+
+@app.command()
+def report(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts folder with a finished validate stage"),
+           out: Optional[Path] = typer.Option(None, help="file (default <artifacts_dir>/validate/report.html)")):
+    """Write a self-contained report.html: every stage, side-by-side views, accuracy against time."""
+    from .report import write_report
+
+    typer.echo(f"report: {write_report(artifacts_dir, out)}")
+
+
+@app.command()
+def study(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML"),
+          profile: str = typer.Option("quick", help="quick | full"),
+          out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/study)"),
+          seed: int = typer.Option(0, help="seed"),
+          root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+          quiet: bool = QUIET):
+    """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time."""
+    from .stages.study import run_study
+
+    from rig.spec import load_spec
+
+    spec, _ = load_spec(scene)
+    out = out or stage_dir(spec.name, "study", root)
+    m = run_study(scene, out, profile=profile, seed=seed, root=root, quiet=quiet)
+    typer.echo(f"study: {m['metrics']['points']} points ({m['metrics']['failed']} failed) "
+               f"in {m['wall_time_s']:.0f} s -> {out}")
 
 
 @app.command()

@@ -498,8 +498,3 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
         Path(tmp).write_text(page, encoding="utf-8")
     return path
 
-
-if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph report`
-    import sys
-
-    print(write_report(Path(sys.argv[1])))

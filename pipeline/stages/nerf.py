@@ -146,26 +146,3 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
     ckpt.unlink(missing_ok=True)
     return m
 
-
-if __name__ == "__main__":  # temporary: for testing until the lead wires the CLI
-    import argparse
-    import sys
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("capture_dir", type=Path)
-    ap.add_argument("--poses", type=Path)
-    ap.add_argument("--reference", type=Path)
-    ap.add_argument("--model", default="fast")
-    ap.add_argument("--minutes", type=float, default=10.0)
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--resume", action="store_true")
-    ap.add_argument("--quiet", action="store_true")
-    ap.add_argument("--clock", default="wall", choices=["wall", "cpu"])
-    a = ap.parse_args()
-    try:
-        man = run_nerf(a.capture_dir, a.poses, a.model, a.minutes, a.out, a.reference, resume=a.resume, quiet=a.quiet,
-                       clock=a.clock)
-    except BadInput as exc:
-        print(f"lumigraph: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    print(f"nerf {a.model}: PSNR {man['metrics']['psnr_mean']:.2f} dB in {man['metrics']['train_s']:.0f} s -> {a.out}")

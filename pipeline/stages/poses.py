@@ -286,15 +286,3 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
         result = manifest.write(tmp)
     return result
 
-
-if __name__ == "__main__":  # temporary entry for testing until the CLI verb is wired
-    import sys
-
-    from ..cli import main as _cli_main  # noqa: F401  (keeps the import graph the CLI's)
-
-    try:
-        m = run_poses(Path(sys.argv[1]), sys.argv[2], Path(sys.argv[3]))
-        print(json.dumps(m["metrics"], indent=1))
-    except BadInput as exc:
-        print(f"lumigraph: error: {exc}", file=sys.stderr)
-        sys.exit(2)

@@ -181,12 +181,13 @@ def _direct_renderer(scene_file: Path, config: SlabStageConfig):
                 r.close()
     else:
         from render import pathtracer
+        from render.gbuffer import first_hit_buffers
 
         settings = pathtracer.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed)
 
         def render(cam: Camera):
             res = pathtracer.render(rig.scene, cam, settings)
-            depth, _ = pathtracer.depth_and_mask(rig.scene, cam)
+            depth, _ = first_hit_buffers(rig.scene, cam)
             return res.mean, depth
 
         def close():
@@ -377,22 +378,3 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
         result = manifest.write(tmp)
     return result
 
-
-if __name__ == "__main__":  # layout and compression options until the CLI has them
-    import argparse
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("capture_dir", type=Path)
-    ap.add_argument("--poses", type=Path)
-    ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--method", default="direct")
-    ap.add_argument("--uv-res", type=int, default=LayoutConfig.uv_res)
-    ap.add_argument("--st-res", type=int, default=LayoutConfig.st_res)
-    ap.add_argument("--reference", type=Path)
-    ap.add_argument("--layout", default="ring", choices=["ring", "box"])
-    ap.add_argument("--no-compress", action="store_true")
-    a = ap.parse_args()
-    cfg = SlabStageConfig(method=a.method, layout=LayoutConfig(kind=a.layout, uv_res=a.uv_res, st_res=a.st_res),
-                          compress=not a.no_compress)
-    m = run_slab(a.capture_dir, a.poses, a.out, cfg, a.reference)
-    print({k: v for k, v in m["metrics"].items()})

@@ -447,20 +447,3 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
         result = manifest.write(tmp)
     return result
 
-
-if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph study`
-    import argparse
-    import sys
-
-    ap = argparse.ArgumentParser()
-    ap.add_argument("scene")
-    ap.add_argument("--profile", default="quick")
-    ap.add_argument("--out", type=Path)
-    ap.add_argument("--root", type=Path, default=Path("artifacts"))
-    a = ap.parse_args()
-    try:
-        m = run_study(a.scene, a.out, a.profile, root=a.root)
-    except BadInput as exc:
-        print(f"lumigraph: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    print(m["metrics"])

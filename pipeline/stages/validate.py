@@ -410,13 +410,3 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
         result = manifest.write(tmp)
     return result
 
-
-if __name__ == "__main__":  # temporary entry point until the lead wires `lumigraph validate`
-    import sys
-
-    try:
-        m = run_validate(Path(sys.argv[1]))
-    except BadInput as exc:
-        print(f"lumigraph: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-    print(m["metrics"])
