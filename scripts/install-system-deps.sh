@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Debian packages for headless OpenGL (pyrender through EGL on Mesa's llvmpipe).
+# Debian packages for headless OpenGL (pyrender through EGL on Mesa's llvmpipe), and chromium
+# (the report's test loads report.html in a real headless browser).
 # Installs only what is missing; uses sudo when not root.
 set -euo pipefail
-pkgs=(libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libglvnd0)
+pkgs=(libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libglvnd0 chromium)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
