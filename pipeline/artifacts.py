@@ -66,12 +66,34 @@ def read_json(path: Path):
         raise BadInput(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
 
 
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def _remove_orphans(final: Path) -> None:
+    """Delete partial folders of ``final`` left by processes that no longer run."""
+    for folder in final.parent.glob(f".{final.name}.partial-*"):
+        pid = folder.name.rsplit(".partial-", 1)[1].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 @contextmanager
 def atomic_stage(final: Path):
-    """Yield a fresh temporary folder; on success replace ``final`` with it, else delete it."""
+    """Yield a fresh temporary folder; on success replace ``final`` with it, else delete it.
+
+    A killed run leaves its ``.<name>.partial-<pid>-*`` folder behind (nothing can clean up after
+    SIGKILL); the next run of the stage removes those whose process is gone."""
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    _remove_orphans(final)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-{os.getpid()}-", dir=final.parent))
     try:
         yield tmp
         if final.exists():

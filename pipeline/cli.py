@@ -206,13 +206,16 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
         seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
         spp: int = typer.Option(16, help="reference samples per pixel"),
         colmap_image_scale: float = typer.Option(0.5, help="COLMAP's image scale (params.yaml poses.image_scale)"),
+        nerf_model: str = typer.Option("fast", help="NeRF model"),
+        nerf_minutes: float = typer.Option(4.0, help="NeRF training budget (0: skip the NeRF)"),
         quiet: bool = QUIET):
-    """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, then a summary."""
+    """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, NeRF, validate,
+    report; ends with the report's path."""
     from .pipeline_run import run_pipeline
 
     rig, path = _load(scene)
     summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, colmap_image_scale=colmap_image_scale,
-                           quiet=quiet)
+                           nerf_model=nerf_model, nerf_minutes=nerf_minutes, quiet=quiet)
     for line in summary:
         typer.echo(line)
 

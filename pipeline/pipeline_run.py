@@ -13,18 +13,25 @@ __all__ = ["run_pipeline"]
 
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
-                 colmap_image_scale: float = 0.5, quiet: bool = False) -> list[str]:
-    """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab.
+                 colmap_image_scale: float = 0.5, nerf_model: str = "fast", nerf_minutes: float = 4.0,
+                 quiet: bool = False) -> list[str]:
+    """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab (direct,
+    and rebinned on COLMAP's cameras when they exist), NeRF, validate and report.
 
-    Returns summary lines. A stage that fails on its input (BadInput) stops the run: later
-    stages would only consume a missing artifact.
+    Returns summary lines, the last one the report's path. A stage that fails on its input
+    (BadInput) stops the run, except a failed pose estimate: that is a finding, recorded in its
+    metrics.json and shown by the report, and only the models built on it are skipped.
+    nerf_minutes 0 skips the NeRF.
     """
-    from .stages.capture import run_capture
     from recon.poses import ColmapConfig
 
+    from .report import write_report
+    from .stages.capture import run_capture
+    from .stages.nerf import run_nerf
     from .stages.poses import PosesConfig, run_poses
     from .stages.reference import run_reference
-    from .stages.slab import run_slab
+    from .stages.slab import SlabStageConfig, run_slab
+    from .stages.validate import run_validate
 
     name = rig.scene.name
     t0 = time.perf_counter()
@@ -42,18 +49,38 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
     lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
                  f"{m['wall_time_s']:.1f} s")
     methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])
+    estimated = {}
     for method in methods:
         out = stage_dir(name, f"poses/{method}", root)
         try:
             m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet)
-        except BadInput as exc:  # a failed estimate is a finding, recorded in its metrics.json
+        except BadInput as exc:
             lines.append(f"poses      {method}: failed: {exc}")
             continue
+        estimated[method] = out
         mt = m["metrics"]
         lines.append(f"poses      {method}: {mt['views_registered']}/{mt['views_total']} views, rotation error "
                      f"{mt['rotation_error_deg_mean']:.4f} deg mean, {m['wall_time_s']:.1f} s")
-    m = run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet)
-    lines.append(f"slab       {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
-                 f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
+
+    def slab_line(label: str, m: dict) -> str:
+        return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
+                f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
+
+    lines.append(slab_line("slab", run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet)))
+    if "colmap" in estimated:
+        m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root), SlabStageConfig(method="rebin"),
+                     reference_dir=ref, quiet=quiet)
+        lines.append(slab_line("slab-colmap", m))
+    if nerf_minutes > 0:
+        m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
+                     seed=seed or 0, quiet=quiet)
+        mt = m["metrics"]
+        lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
+                     f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")
+    m = run_validate(stage_dir(name, "", root), quiet=quiet)
+    best = m["metrics"]["best"]
+    lines.append(f"validate   {m['metrics']['models']} models; best at the held-out views: {best}")
+    report = write_report(stage_dir(name, "", root))
     lines.append(f"total      {time.perf_counter() - t0:.1f} s; artifacts in {Path(root) / name}")
+    lines.append(f"report     {report}")
     return lines

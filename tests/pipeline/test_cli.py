@@ -118,6 +118,33 @@ def test_interrupted_capture_leaves_nothing_that_looks_finished(tmp_path, monkey
     assert not out.exists() and not _leftovers(tmp_path / "arts")
 
 
+
+def test_killed_stage_then_rerun_equals_an_uninterrupted_run(tmp_path):
+    """SIGKILL (no clean-up possible) mid-render: nothing looks finished; the re-run clears the
+    orphaned partial folder and writes exactly what an uninterrupted run writes."""
+    import os
+    import signal
+    import time
+
+    scene = write_scene(tmp_path / "scenes", TINY_SCENE)
+    cmd = lambda out: [sys.executable, "-m", "pipeline", "reference", str(scene), "--spp", "64", "--workers", "0",
+                       "--out", str(out), "--quiet"]
+    out = tmp_path / "arts" / "reference"
+    proc = subprocess.Popen(cmd(out), start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not list(out.parent.glob(".reference.partial-*")) and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    time.sleep(0.3)  # inside the render
+    os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.wait(30) == -signal.SIGKILL, "the render finished before it could be killed"
+    assert not out.exists() and list(out.parent.glob(".reference.partial-*"))
+    assert subprocess.run(cmd(out), capture_output=True, timeout=300).returncode == 0
+    assert not _leftovers(out.parent)
+    clean = tmp_path / "clean" / "reference"
+    assert subprocess.run(cmd(clean), capture_output=True, timeout=300).returncode == 0
+    images = lambda folder: {k: v for k, v in read_manifest(folder)["outputs"].items() if k.endswith((".exr", ".png"))}
+    assert images(out) and images(out) == images(clean)  # metrics.json differs only in timings
+
 def test_inspect_shows_the_folder_and_flags_changed_files(tiny_capture, tmp_path, capsys):
     import shutil
 

@@ -1,4 +1,5 @@
 """`dvc repro` runs the project's dvc.yaml for real (local cache only, no remote)."""
+import json
 import os
 import shutil
 import subprocess
@@ -26,6 +27,7 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     params["reference"]["spp"] = 4
     params["poses"]["method"] = "gt"  # six 128x96 views are too few for SfM; the stage wiring is what is tested
     params["slab"].update(uv_res=4, st_res=24)
+    params["nerf"].update(minutes=0.05)  # a few seconds of training: the wiring is what is tested
     (work / "params.yaml").write_text(yaml.safe_dump(params))
     bin_dir = Path(sys.executable).parent
     env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "DVC_NO_ANALYTICS": "1"}
@@ -40,6 +42,29 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     assert ref["params"]["spp"] == 4 and ref["metrics"]["views"] == 2
     assert read_manifest(work / "artifacts" / "tiny" / "poses" / "gt")["stage"] == "poses"
     assert read_manifest(work / "artifacts" / "tiny" / "slab")["stage"] == "slab"
+    assert read_manifest(work / "artifacts" / "tiny" / "nerf" / "fast")["stage"] == "nerf"
+    assert read_manifest(work / "artifacts" / "tiny" / "validate")["stage"] == "validate"
+    assert (work / "artifacts" / "tiny" / "validate" / "report.html").is_file()
     assert (work / "dvc.lock").is_file()
-    second = run("repro")
-    assert second.returncode == 0 and "didn't change" in second.stdout + second.stderr
+
+    second = run("repro")  # unchanged: nothing is redone
+    assert second.returncode == 0 and "Running stage" not in second.stdout, second.stdout
+    assert second.stdout.count("didn't change") == 6
+
+    shown = run("metrics", "show", "--json")
+    assert shown.returncode == 0, shown.stderr
+    metrics = json.loads(shown.stdout)
+    files = next(iter(metrics.values()))["data"]
+    assert "psnr_mean" in files["artifacts/tiny/nerf/fast/metrics.json"]["data"]
+    assert "models" in files["artifacts/tiny/validate/metrics.json"]["data"]
+    plots = run("plots", "show", "--json")
+    assert plots.returncode == 0 and "curve.csv" in plots.stdout and "models.csv" in plots.stdout, plots.stderr
+
+    # one parameter changed: only the stages downstream of it run again
+    params["slab"].update(st_res=20)
+    (work / "params.yaml").write_text(yaml.safe_dump(params))
+    third = run("repro")
+    assert third.returncode == 0, third.stderr + third.stdout
+    ran = {s for s in ("capture", "reference", "poses", "slab", "nerf", "validate")
+           if f"Running stage '{s}'" in third.stdout}
+    assert ran == {"slab", "validate"}, third.stdout

@@ -19,6 +19,10 @@ from render.poses import look_at
 from render.volume import VoxelField, render_voxels_exact
 
 SIZE = (32, 24)
+# The fast model shrunk for tests: small grids and batches, occupancy updates from step 30.
+FAST_SMALL = (("res_init", 16), ("res_final", 40), ("occ_res", 16), ("steps_per_side", 96),
+              ("n_comp_app", 12), ("points_per_batch", 8192), ("max_rays", 1024), ("occ_start", 30),
+              ("occ_every", 30))
 
 
 def tiny_field() -> VoxelField:

@@ -20,12 +20,9 @@ from recon.nerf.sampling import sample_pdf, stratified
 from recon.nerf.train import TrainConfig, render_view, train
 from render.image_io import read_exr
 
-from .nerf_fixtures import SIZE, make_tiny_capture, tiny_cameras
+from .nerf_fixtures import FAST_SMALL, SIZE, make_tiny_capture, tiny_cameras
 
 # small grids and batches: the tiny scene needs no more, and the file stays fast
-FAST_SMALL = (("res_init", 16), ("res_final", 40), ("occ_res", 16), ("steps_per_side", 96),
-              ("n_comp_app", 12), ("points_per_batch", 8192), ("max_rays", 1024), ("occ_start", 30),
-              ("occ_every", 30))
 VANILLA_SMALL = (("width", 32), ("n_coarse", 8), ("n_fine", 8), ("batch_rays", 64), ("curve_pixels", 64))
 
 
