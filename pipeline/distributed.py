@@ -88,6 +88,8 @@ class ClusterConfig:
     no_workers_timeout_s: stop when the cluster has had no worker this long (never hang).
     poll_s: how often the client checks the cluster while waiting.
     connect_timeout_s: how long to wait for an existing scheduler to answer.
+    task_threads: render threads per task; None: fill each host's cores (:func:`render_threads`).
+    Benchmarks set 1 to measure scaling in workers alone.
     """
 
     scheduler: str | None = None
@@ -96,6 +98,7 @@ class ClusterConfig:
     no_workers_timeout_s: float = 120.0
     poll_s: float = 1.0
     connect_timeout_s: float = 10.0
+    task_threads: int | None = None
 
     def __post_init__(self):
         if self.workers is not None and self.workers < 0:
@@ -219,7 +222,7 @@ class DaskEngine:
         self.client = client
         self.config = config
         self.workers = len(client.nthreads())
-        self.render_threads = render_threads(client)
+        self.render_threads = config.task_threads or render_threads(client)
         self.name = "dask local cluster" if local else "dask cluster"
 
     def share(self, obj) -> Shared:
