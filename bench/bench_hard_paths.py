@@ -7,7 +7,12 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   a long ``path`` reference for ``path`` (compiled kernels) and ``volpath`` (numpy) at
   increasing spp, with wall times; the same on a fog scene (the floor and ball inside a
   homogeneous scattering fog, ``volpath`` only: path cannot render media) against a long
-  ``volpath`` reference. bdpt / sppm / pssmlt are not implemented yet (issue 8).
+  ``volpath`` reference. ``sppm`` (render/sppm.py) on the caustic scene too, at passes chosen
+  so its wall times span path's (rows' ``spp`` = passes, SPPM_PHOTONS photons per pass): the
+  equal-time entry interpolates every integrator's RMSE (log-log) at the longest time all of
+  them reached. sppm takes one eye sample per pixel per pass, so its image RMSE here is
+  dominated by the edge pixels of the directly visible light (32 passes = 32 samples there
+  against path's thousands), not by the caustic. bdpt / pssmlt are not implemented yet (issue 8).
 * pruning: median render time of the no-media scene with ``path`` (what auto picks), with
   ``volpath`` (what a scene with media would need), and with ``volpath`` given an empty medium
   (media code running for nothing): ratios show what each pruning saves.
@@ -57,6 +62,11 @@ def camera(size: int) -> Camera:
                   look_at(np.array([0, -3.2, 2.2]), np.array([0, 0, 0.4]), np.array([0, 0, 1.0])), "c")
 
 
+#: photons per sppm pass in this benchmark (eye-pass noise dominates on this scene: more passes
+#: of fewer photons beat fewer passes of many at equal time)
+SPPM_PHOTONS = 50_000
+
+
 def _rmse(a, b):
     return float(np.sqrt(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
 
@@ -65,30 +75,45 @@ def main(quick: bool = False) -> None:
     size = 24 if quick else 48
     ref_spp = 256 if quick else 4096
     spps = [4, 16] if quick else [4, 16, 64, 256]
+    # path is ~100x faster per sample than the numpy integrators: longer runs span their times
+    path_spps = [4, 16, 64] if quick else [4, 16, 64, 256, 1024, 4096]
+    sppm_passes = [2, 8] if quick else [2, 8, 32, 128]
+    caustic_ref_spp = 1024 if quick else 65536
     cam = camera(size)
     rows, figs = [], {}
     t0 = time.perf_counter()
-    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", ["path", "volpath"]),
+    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", ["path", "volpath", "sppm"]),
                                               ("fog", caustic_scene(0.4), "volpath", ["volpath"])):
         ps = prepare(sc)
         ts = time.perf_counter()
-        ref = render(sc, cam, RenderSettings(integrator=ref_integ, spp=ref_spp, max_depth=8, seed=999), prepared=ps)
-        figs[f"{scene_name}_reference"] = {"integrator": ref_integ, "spp": ref_spp,
+        rspp = caustic_ref_spp if scene_name == "caustic" else ref_spp
+        ref = render(sc, cam, RenderSettings(integrator=ref_integ, spp=rspp, max_depth=8, seed=999), prepared=ps)
+        figs[f"{scene_name}_reference"] = {"integrator": ref_integ, "spp": rspp,
                                            "time_s": round(time.perf_counter() - ts, 2)}
         for integ in integs:
-            for spp in spps:
+            for spp in {"sppm": sppm_passes, "path": path_spps}.get(integ, spps):
                 ts = time.perf_counter()
-                r = render(sc, cam, RenderSettings(integrator=integ, spp=spp, max_depth=8, seed=spp), prepared=ps)
+                r = render(sc, cam, RenderSettings(integrator=integ, spp=spp, max_depth=8, seed=spp,
+                                                   photons_per_pass=SPPM_PHOTONS), prepared=ps)
                 dt = time.perf_counter() - ts
                 rows.append({"scene": scene_name, "integrator": integ, "spp": spp, "time_s": round(dt, 4),
                              "rmse": _rmse(r.mean, ref.mean)})
     # equal-time comparison on the caustic scene: RMSE interpolated in log-log at a common time
     cau = {i: [(r["time_s"], r["rmse"]) for r in rows if r["scene"] == "caustic" and r["integrator"] == i]
-           for i in ("path", "volpath")}
+           for i in ("path", "volpath", "sppm")}
     t_common = min(max(t for t, _ in v) for v in cau.values())
     at = {i: float(np.exp(np.interp(np.log(t_common), np.log([t for t, _ in v]), np.log([e for _, e in v]))))
           for i, v in cau.items()}
-    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "rmse_ratio_volpath_over_path": at["volpath"] / at["path"]}
+    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "rmse_ratio_volpath_over_path": at["volpath"] / at["path"],
+                                  "rmse_ratio_sppm_over_path": at["sppm"] / at["path"],
+                                  "sppm_photons_per_pass": SPPM_PHOTONS}
+    # sppm against path at each sppm run's own wall time (path interpolated, within its range)
+    pt, pe = np.log([t for t, _ in cau["path"]]), np.log([e for _, e in cau["path"]])
+    figs["caustic_sppm_vs_path"] = [
+        {"passes": r["spp"], "time_s": r["time_s"], "rmse_sppm": r["rmse"],
+         "rmse_path": float(np.exp(np.interp(np.log(r["time_s"]), pt, pe))),
+         "rmse_ratio_sppm_over_path": r["rmse"] / float(np.exp(np.interp(np.log(r["time_s"]), pt, pe)))}
+        for r in rows if r["scene"] == "caustic" and r["integrator"] == "sppm" and pt.min() <= np.log(r["time_s"]) <= pt.max()]
     # pruning: no media -> path; volpath with no media; volpath with an empty (sigma 0) medium
     sc = caustic_scene()
     ps = prepare(sc)

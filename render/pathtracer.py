@@ -30,6 +30,13 @@ Integrators (Heckbert's notation; see render.effects):
   (delta tracking, NEE through media by ratio tracking) and GGX microfacet surfaces
   (:mod:`render.microfacet`), which the compiled kernels do not shade: ``auto`` picks it when
   the scene has media (effect ``media``) or glossy materials, and only then (it is slower).
+* ``sppm`` (:mod:`render.sppm`, numpy): stochastic progressive photon mapping (Hachisuka and
+  Jensen 2009) for caustics (L S+ D E) that path tracing finds only by chance: direct light by
+  next-event estimation at each pixel's visible point, everything else from photons. Consistent,
+  not unbiased: ``spp`` is the number of passes, ``photons_per_pass`` the photons per pass; its
+  variance image is zero (no unbiased per-pixel variance exists) and its passes cannot be split
+  into sample ranges or refined. Reaches caustics from point, spot and directional lights too.
+  Never chosen by ``auto``; no media, no GGX materials.
 
 Conventions: radiometry and light units of :mod:`render.scene`; pixel centres at +0.5 and
 OpenCV camera axes of :mod:`render.camera`; scene.background is the radiance of every escaping
@@ -85,6 +92,7 @@ INTEGRATOR_EFFECTS = {
     "direct": frozenset({"direct", "shadows", "soft_shadows", "specular"}),
     "path": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
     "volpath": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"}),
+    "sppm": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
 }
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
 #: random dimensions per bounce (render.pt_kernels.shade_bounce): light pick, light uv (2), lobe, bsdf uv (2),
@@ -96,8 +104,9 @@ _DIMS_PER_BOUNCE = 8
 class RenderSettings:
     """How to render.
 
-    integrator: "auto" (chosen from the scene's effects), "direct", "path" or "volpath".
-    spp: samples per pixel when no sample range is given. max_depth: maximum bounces.
+    integrator: "auto" (chosen from the scene's effects), "direct", "path", "volpath" or "sppm"
+    (never chosen by auto). spp: samples per pixel when no sample range is given (sppm: passes).
+    max_depth: maximum bounces. photons_per_pass: photons emitted per sppm pass (sppm only).
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth.
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
     (next-event estimation only) or "bsdf" (BSDF sampling only for area sources; delta lights
@@ -116,16 +125,19 @@ class RenderSettings:
     heuristic: str = "power"
     threads: int = 2
     batch_paths: int = 1 << 16
+    photons_per_pass: int = 200_000
 
     def __post_init__(self):
-        if self.integrator not in ("auto", "direct", "path", "volpath"):
-            raise ValueError(f"integrator must be auto, direct, path or volpath, got {self.integrator!r}")
+        if self.integrator not in ("auto", "direct", "path", "volpath", "sppm"):
+            raise ValueError(f"integrator must be auto, direct, path, volpath or sppm, got {self.integrator!r}")
         if self.strategy not in ("mis", "light", "bsdf"):
             raise ValueError(f"strategy must be mis, light or bsdf, got {self.strategy!r}")
         if self.heuristic not in ("power", "balance"):
             raise ValueError(f"heuristic must be power or balance, got {self.heuristic!r}")
         if self.spp < 1 or self.max_depth < 0 or self.rr_depth < 0 or self.threads < 1 or self.batch_paths < 1:
             raise ValueError("spp, threads and batch_paths must be >= 1; max_depth, rr_depth >= 0")
+        if self.photons_per_pass < 1:
+            raise ValueError(f"photons_per_pass must be >= 1, got {self.photons_per_pass}")
 
 
 def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False,
@@ -136,15 +148,16 @@ def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool =
     compiled kernels do not shade them), else "direct" unless interreflection or caustics are
     needed, then "path". A requested integrator that cannot reach an effect (or shade a glossy
     material) raises ValueError naming it, as do caustics with point/spot/directional lights
-    (unreachable by every integrator here: no light tracing yet).
+    (unreachable by the path tracers; only 'sppm', which traces photons from the lights,
+    reaches them, and auto never picks it).
     """
     eff = frozenset(effects) & _TRANSPORT
-    if glossy and requested in ("direct", "path"):
+    if glossy and requested in ("direct", "path", "sppm"):
         raise ValueError(f"integrator '{requested}' cannot shade glossy (GGX) materials; use 'volpath' or 'auto'")
-    if "caustics" in eff and has_delta_lights:
+    if "caustics" in eff and has_delta_lights and requested != "sppm":
         raise ValueError("effect 'caustics' with point/spot/directional lights is unreachable by a path "
-                         "tracer (a delta light seen through a delta BSDF); use area lights or drop "
-                         "'caustics' from the scene's effects")
+                         "tracer (a delta light seen through a delta BSDF); use area lights, integrator "
+                         "'sppm', or drop 'caustics' from the scene's effects")
     if requested == "auto":
         if "media" in eff or glossy:
             return "volpath"
@@ -310,6 +323,9 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     if integ == "volpath":
         from .volpath import render_volpath
         return render_volpath(scene, camera, settings, sample_range, eff, ps)
+    if integ == "sppm":
+        from .sppm import render_result
+        return render_result(scene, camera, settings, sample_range, eff, ps)
     caustics = "caustics" in eff
     a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
     if not 0 <= a < b:

@@ -1,0 +1,528 @@
+"""``sppm``: stochastic progressive photon mapping (Hachisuka and Jensen 2009), numpy wavefront.
+
+Caustics (L S+ D E paths) from small or delta sources are where the unidirectional path tracer
+is weak: it must find the source by BSDF-sampling *through* the specular chain. SPPM traces
+them from the light instead. Each pass (pbrt-v3's SPPMIntegrator, whose structure this follows):
+
+1. **Eye pass.** One jittered camera ray per pixel follows mirror and glass (the numpy BSDFs of
+   :mod:`render.bsdf`) up to the first diffuse (Lambertian) hit, the pixel's *visible point*:
+   position, normal facing the viewer, weight = specular throughput x albedo / pi, depth.
+   Emission seen directly or through the specular chain goes to the pixel's direct term, and so
+   does next-event estimation (one light sample, one shadow ray) at the visible point: direct
+   light never comes from photons.
+2. **Photon pass.** ``photons_per_pass`` photons leave the lights (chosen by power as in
+   :class:`render.lights.LightSet`; area sources: a uniform point, a cosine-weighted direction
+   on the emitting side, flux Le pi A / p_select, twice that and a random side if two-sided;
+   point, spot and directional lights: uniform sphere, uniform cone, a disk of the scene's
+   bounding radius). They scatter off diffuse, mirror and glass surfaces with Russian roulette
+   (survival = the BSDF's albedo, so flux stays constant on diffuse bounces) and are *stored at
+   every diffuse hit but the first* (the first is direct light, counted by step 1).
+   Photons carry importance, not radiance: refraction does not scale them by (eta_i/eta_t)^2
+   (pbrt's TransportMode::Importance; Veach 1997, section 5.2), so the glass weight of
+   :func:`render.bsdf.dielectric_sample` is replaced by 1.
+3. **Gather.** A ``scipy.spatial.cKDTree`` over the stored photons and one over the visible
+   points (grouped into radius classes a factor sqrt(2) apart, so each query's search radius
+   is at most sqrt(2) times the points' own) give all (visible point, photon) pairs closer
+   than the point's radius in one ``sparse_distance_matrix`` call per class. A pair counts if
+   the photon arrives on the visible point's front side and the full path respects max_depth;
+   its contribution is photon flux x the point's weight (Lambert: albedo / pi).
+4. **Progressive update** per pixel with M photons found (alpha = 2/3):
+   N' = N + alpha M, R' = R sqrt(N' / (N + M)), tau' = (tau + Phi) (R' / R)^2.
+
+After P passes of N_e photons: L = direct_sum / P + tau / (P N_e pi R^2). The estimate is
+*consistent, not unbiased* (the density estimate blurs over the radius, which shrinks as
+P^((alpha - 1) / 2) where photons land), so there is no per-pixel sample variance: the
+:class:`render.film.RenderResult` that :func:`render.pathtracer.render` returns for sppm has a
+zero variance image, and sppm renders of disjoint sample ranges do not merge (progressive
+statistics are a chain, not a sum). :class:`SPPMResult` keeps the direct term's own variance,
+the per-pixel radii and photon counts, and a per-pass history.
+
+Max depth counts scattering events as in :mod:`render.pathtracer`: a path of k specular eye
+bounces, the visible point and a photon that scattered d times before landing has k + 1 + d
+bounces and is counted only if that is <= max_depth (NEE: k + 1, emission seen: k).
+
+Shading uses geometric normals; Lambertian and mirror surfaces are two-sided, dielectrics and
+emitters are not, as everywhere in :mod:`render`. GGX materials and participating media are
+not supported (ValueError naming sppm). Random numbers: a numpy Generator per pass seeded by
+(seed, pass, stream): a render is a pure function of (scene, camera, passes, photons, seed).
+Secondary rays start at :func:`render.accel.spawn_origin` offsets (as volpath).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .accel import spawn_origin
+from .bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample, lambert_sample
+from .camera import Camera
+from .lights import DIRECTIONAL, POINT, SPOT
+from .sampling import (INV_PI, cosine_hemisphere, dot3, max3, orthonormal_frame, to_local, to_world,
+                       uniform_sphere, uniform_triangle)
+from .scene import spot_falloff
+
+__all__ = ["SPPMResult", "render_sppm", "ALPHA"]
+
+#: Hachisuka and Jensen's (and pbrt's) fraction of new photons kept per pass
+ALPHA = 2.0 / 3.0
+#: visible points per gather query (bounds the pair arrays' memory)
+_GATHER_CHUNK = 2048
+#: radius classes of the gather, a factor sqrt(2) apart
+_RADIUS_CLASSES = 40
+
+
+@dataclass
+class SPPMResult:
+    """An SPPM render.
+
+    mean: (H, W, 3) float64 radiance estimate. radius: (H, W) float64 final gather radii (> 0).
+    photons: (H, W) float64 accumulated photon count N. tau: (H, W, 3) float64 accumulated
+    (radius-rescaled) flux. direct: (H, W, 3) float64 mean direct term (emission seen through
+    specular chains + next-event estimation at the visible points) and direct_variance its
+    variance of the mean (the photon term has none). passes, photons_per_pass: what was traced.
+    history: one dict per pass (pass, mean_radius, visible_points, stored_photons, gathered,
+    time_s). stats: time_s, paths (camera + photon paths), rays.
+    """
+
+    mean: np.ndarray
+    radius: np.ndarray
+    photons: np.ndarray
+    tau: np.ndarray
+    direct: np.ndarray
+    direct_variance: np.ndarray
+    passes: int
+    photons_per_pass: int
+    history: list = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+
+
+def _check_supported(scene, mats) -> None:
+    if mats.has_glossy:
+        raise ValueError("integrator 'sppm' cannot shade glossy (GGX) materials; use 'volpath'")
+    if getattr(scene, "media", None):
+        raise ValueError("integrator 'sppm' cannot reach effect 'media' (participating media); use 'volpath'")
+
+
+def _facing(ng: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Geometric normals (N, 3) flipped to face against the ray directions d (N, 3)."""
+    return np.where((dot3(ng, d) > 0)[:, None], -ng, ng)
+
+
+def _scatter_frames(kind: np.ndarray, ng: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Frame normals: dielectrics keep the outward normal, two-sided materials face -d."""
+    return np.where((kind == DIELECTRIC)[:, None], ng, _facing(ng, d))
+
+
+# ---------------------------------------------------------------- eye pass
+def _eye_pass(ps, camera: Camera, rng: np.random.Generator, max_depth: int):
+    """Trace one jittered camera ray per pixel to its visible point.
+
+    Returns (direct (npix, 3) emission seen through specular chains, visible points dict with
+    (V,) pix, depth, (V, 3) p, ng (geometric), n (facing the viewer), w (throughput x albedo / pi),
+    (V,) footprint (path length / fx), rays traced).
+    """
+    geom, mats, accel = ps.geom, ps.mats, ps.accel
+    k = camera.intrinsics
+    npix = k.width * k.height
+    pix = np.arange(npix)
+    jit = np.stack([pix % k.width + rng.random(npix), pix // k.width + rng.random(npix)], axis=1)
+    o, d = camera.pixel_rays(jit)
+    beta = np.ones((npix, 3))
+    plen = np.zeros(npix)
+    direct = np.zeros((npix, 3))
+    bg = ps.background
+    has_bg = bool(bg.max() > 0)
+    extent = geom.extent
+    vps = []
+    rays = 0
+    for depth in range(max_depth + 1):
+        if len(pix) == 0:
+            break
+        h = accel.intersect(o, d)
+        rays += len(pix)
+        hit = h.tri >= 0
+        if has_bg and not hit.all():
+            direct[pix[~hit]] += beta[~hit] * bg  # one path per pixel: indices are unique
+        pix, o, d, beta, plen = pix[hit], o[hit], d[hit], beta[hit], plen[hit]
+        tri, t = h.tri[hit], h.t[hit]
+        p, ng = geom.point_normal(tri, h.u[hit], h.v[hit])
+        obj = geom.obj[tri]
+        kind = mats.kind[obj]
+        plen = plen + t
+        em = mats.emits[obj]
+        if em.any():
+            e = np.nonzero(em)[0]
+            front = mats.two_sided[obj[e]] | (dot3(d[e], ng[e]) < 0)
+            direct[pix[e]] += beta[e] * mats.Le[obj[e]] * front[:, None]
+        if depth == max_depth:
+            break
+        diff = np.nonzero(kind == LAMBERT)[0]
+        if len(diff):
+            alb = mats.diffuse_albedo(obj[diff], lambda m: geom.texcoords(tri[diff][m], h.u[hit][diff][m],
+                                                                          h.v[hit][diff][m]))
+            w = beta[diff] * alb * INV_PI
+            keep = max3(w) > 0
+            s = diff[keep]
+            vps.append((pix[s], np.full(len(s), depth), p[s], ng[s], _facing(ng[s], d[s]), w[keep],
+                        plen[s] / max(k.fx, 1e-300)))
+        spec = np.nonzero((kind == MIRROR) | (kind == DIELECTRIC))[0]
+        if len(spec) == 0:
+            pix = pix[:0]
+            break
+        kd, ngs, ds = kind[spec], ng[spec], d[spec]
+        nrm = _scatter_frames(kd, ngs, ds)
+        t1, t2 = orthonormal_frame(nrm)
+        wo = to_local(-ds, t1, t2, nrm)
+        bs = bsdf_sample(kd, mats.albedo[obj[spec]], mats.ior[obj[spec]], wo, rng.random(len(spec)),
+                         rng.random((len(spec), 2)))
+        wi = to_world(bs.wi, t1, t2, nrm)
+        ok = bs.valid & (max3(bs.weight) > 0)
+        s = spec[ok]
+        pix, beta, plen = pix[s], beta[s] * bs.weight[ok], plen[s]
+        d = wi[ok]
+        o = spawn_origin(p[s], ng[s], d, extent)
+    if vps:
+        cols = [np.concatenate(c) for c in zip(*vps)]
+    else:
+        cols = [np.zeros(0, np.int64), np.zeros(0, np.int64)] + [np.zeros((0, 3))] * 4 + [np.zeros(0)]
+    vp = dict(zip(("pix", "depth", "p", "ng", "n", "w", "footprint"), cols))
+    return direct, vp, rays
+
+
+def _direct_at_visible_points(ps, vp: dict, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """(V, 3) next-event estimate of direct light at the visible points (one light sample each)."""
+    lights, accel = ps.lights, ps.accel
+    nv = len(vp["pix"])
+    out = np.zeros((nv, 3))
+    if nv == 0 or lights.empty:
+        return out, 0
+    ls = lights.sample(vp["p"], rng.random(nv), rng.random((nv, 2)))
+    cos = dot3(ls.wi, vp["n"])
+    ok = ls.valid & (cos > 0) & (ls.pdf > 0) & np.isfinite(ls.pdf) & (max3(ls.Li) > 0)
+    k = np.nonzero(ok)[0]
+    if len(k) == 0:
+        return out, 0
+    extent = ps.geom.extent
+    wi, dist = ls.wi[k], ls.dist[k]
+    o = spawn_origin(vp["p"][k], vp["ng"][k], wi, extent)
+    tmax = np.where(np.isfinite(dist), dist * (1.0 - 1e-5) - 1e-6 * extent, 3e38)
+    vis = ~accel.occluded(o, wi, np.maximum(tmax, 0.0))
+    # w = beta albedo / pi already holds the Lambert BSDF value
+    out[k] = vp["w"][k] * ls.Li[k] * (vis * cos[k] / ls.pdf[k])[:, None]
+    return out, len(k)
+
+
+# ---------------------------------------------------------------- photon pass
+def _scene_bounds(geom) -> tuple[np.ndarray, float]:
+    """(centre (3,), bounding radius) of the valid triangles (for directional-light photons)."""
+    v = geom.valid
+    if not v.any():
+        return np.zeros(3), 0.5 * geom.extent
+    pts = np.concatenate([geom.v0[v], geom.v0[v] + geom.e1[v], geom.v0[v] + geom.e2[v]])
+    lo, hi = pts.min(0), pts.max(0)
+    return 0.5 * (lo + hi), 0.5 * geom.extent
+
+
+def _emit_photons(ps, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """n photons from the scene's lights: (origins (n, 3), unit directions (n, 3), flux (n, 3)).
+
+    Light chosen by the LightSet's power pmf; flux = emitted power estimate / (pmf x pdfs).
+    Photons with zero flux (e.g. a spot's outside-the-cone direction) are dropped by the caller.
+    """
+    lights, geom = ps.lights, ps.geom
+    extent = geom.extent
+    o, d, flux = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    d[:, 2] = 1.0
+    if lights.empty or n == 0:
+        return o, d, flux
+    ent = np.minimum(np.searchsorted(lights.cdf, rng.random(n) * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
+    u_pos, u_dir, u_side = rng.random((n, 2)), rng.random((n, 2)), rng.random(n)
+    pmf = lights.pmf[ent]
+    a = np.nonzero(ent < lights.n_area)[0]
+    if len(a):
+        j = ent[a]
+        b = uniform_triangle(u_pos[a])
+        p = lights.a_v0[j] + b[:, 0:1] * lights.a_e1[j] + b[:, 1:2] * lights.a_e2[j]
+        nl = lights.a_normal[j]
+        two = lights.two_sided[j]
+        flip = two & (u_side[a] < 0.5)
+        nl = np.where(flip[:, None], -nl, nl)
+        t1, t2 = orthonormal_frame(nl)
+        w = to_world(cosine_hemisphere(u_dir[a]), t1, t2, nl)
+        area = geom.area[lights.tri[j]]
+        # Le cos / (pmf / A  x  cos / pi  [x 1/2 side])
+        scale = np.pi * area * np.where(two, 2.0, 1.0) / np.maximum(pmf[a], 1e-300)
+        o[a] = spawn_origin(p, nl, w, extent)
+        d[a] = w
+        flux[a] = lights.Le[j] * scale[:, None]
+    if len(lights.d_kind):
+        centre, radius = _scene_bounds(geom)
+        for li in range(len(lights.d_kind)):  # few lights; vectorized over photons
+            m = np.nonzero(ent == lights.n_area + li)[0]
+            if len(m) == 0:
+                continue
+            kind, I, pm = lights.d_kind[li], lights.d_I[li], max(lights.pmf[lights.n_area + li], 1e-300)
+            if kind == POINT:
+                o[m], d[m] = lights.d_pos[li], uniform_sphere(u_dir[m])
+                flux[m] = I * (4.0 * np.pi / pm)
+            elif kind == SPOT:
+                ci, co = lights.d_cos[li]
+                cz = 1.0 - u_dir[m, 0] * (1.0 - co)  # uniform in the outer cone
+                sz = np.sqrt(np.maximum(0.0, 1.0 - cz * cz))
+                phi = 2.0 * np.pi * u_dir[m, 1]
+                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
+                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
+                loc = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
+                o[m], d[m] = lights.d_pos[li], to_world(loc, t1, t2, axis)
+                fall = spot_falloff(cz, ci, co)
+                flux[m] = I[None] * (fall * 2.0 * np.pi * (1.0 - co) / pm)[:, None]
+            else:  # directional: a disk of the scene's bounding radius, upstream of the scene
+                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
+                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
+                r = radius * np.sqrt(u_pos[m, 0])
+                phi = 2.0 * np.pi * u_pos[m, 1]
+                o[m] = (centre - 2.0 * radius * lights.d_dir[li]) + (r * np.cos(phi))[:, None] * t1 \
+                    + (r * np.sin(phi))[:, None] * t2
+                d[m] = axis
+                flux[m] = I * (np.pi * radius * radius / pm)
+    return o, d, flux
+
+
+def _photon_pass(ps, n: int, rng: np.random.Generator, max_depth: int, caustics: bool):
+    """Trace n photons; returns (stored photons dict: (P, 3) p, wi (towards where they came from),
+    flux, (P,) depth (scattering events before the hit), rays traced)."""
+    geom, mats, accel = ps.geom, ps.mats, ps.accel
+    extent = geom.extent
+    o, d, beta = _emit_photons(ps, n, rng)
+    live = max3(beta) > 0
+    o, d, beta = o[live], d[live], beta[live]
+    stored = []
+    rays = 0
+    for depth in range(max_depth):  # a photon hit at depth >= max_depth can never be counted
+        if len(o) == 0:
+            break
+        h = accel.intersect(o, d)
+        rays += len(o)
+        hit = h.tri >= 0
+        o, d, beta = o[hit], d[hit], beta[hit]
+        tri = h.tri[hit]
+        p, ng = geom.point_normal(tri, h.u[hit], h.v[hit])
+        obj = geom.obj[tri]
+        kind = mats.kind[obj]
+        diff = kind == LAMBERT
+        if depth >= 1 and diff.any():
+            stored.append((p[diff], -d[diff], beta[diff], np.full(int(diff.sum()), depth)))
+        if depth + 1 >= max_depth:
+            break
+        # scatter: diffuse, mirror, glass (emitters and everything else absorb)
+        sc = np.nonzero(diff | (kind == MIRROR) | (kind == DIELECTRIC))[0]
+        if not caustics:  # drop light that would reach a diffuse vertex through a specular one
+            sc = sc[kind[sc] == LAMBERT]
+        if len(sc) == 0:
+            break
+        ks, ngs, ds, objs = kind[sc], ng[sc], d[sc], obj[sc]
+        nrm = _scatter_frames(ks, ngs, ds)
+        t1, t2 = orthonormal_frame(nrm)
+        wo = to_local(-ds, t1, t2, nrm)
+        u1, u2 = rng.random(len(sc)), rng.random((len(sc), 2))
+        alb = mats.albedo[objs]
+        dl = np.nonzero(ks == LAMBERT)[0]
+        if len(dl) and mats.textures:
+            alb[dl] = mats.diffuse_albedo(objs[dl], lambda m: geom.texcoords(tri[sc][dl][m], h.u[hit][sc][dl][m],
+                                                                             h.v[hit][sc][dl][m]))
+        bs = bsdf_sample(ks, alb, mats.ior[objs], wo, u1, u2)
+        weight = bs.weight
+        glass = ks == DIELECTRIC
+        if glass.any():  # importance transport: no (eta_i / eta_t)^2 radiance scaling
+            weight[glass] = bs.valid[glass, None].astype(np.float64)
+        # Russian roulette with survival = the event's albedo (flux stays constant)
+        q = np.minimum(1.0, max3(weight))
+        ok = bs.valid & (q > 0) & (rng.random(len(sc)) < q)
+        s = sc[ok]
+        beta = beta[s] * (weight[ok] / q[ok, None])
+        d = to_world(bs.wi[ok], t1[ok], t2[ok], nrm[ok])
+        o = spawn_origin(p[s], ng[s], d, extent)
+    if stored:
+        cols = [np.concatenate(c) for c in zip(*stored)]
+    else:
+        cols = [np.zeros((0, 3))] * 3 + [np.zeros(0, np.int64)]
+    return dict(zip(("p", "wi", "flux", "depth"), cols)), rays
+
+
+# ---------------------------------------------------------------- gather
+def _gather(vp: dict, radius: np.ndarray, ph: dict, max_depth: int) -> tuple[np.ndarray, np.ndarray]:
+    """Photons within each visible point's radius: (Phi (V, 3) = sum flux x w, M (V,) count).
+
+    radius: (V,) the points' current radii. Pairs from cKDTree.sparse_distance_matrix, one call
+    per radius class and chunk of points (no loop over points or photons)."""
+    nv = len(vp["pix"])
+    phi = np.zeros((nv, 3))
+    cnt = np.zeros(nv)
+    if nv == 0 or len(ph["p"]) == 0:
+        return phi, cnt
+    tree_p = cKDTree(ph["p"])
+    rmax = float(radius.max())
+    cls = np.minimum(np.floor(2.0 * np.log2(rmax / radius)).astype(np.int64), _RADIUS_CLASSES - 1)
+    order = np.argsort(cls, kind="stable")
+    bounds = np.searchsorted(cls[order], np.arange(_RADIUS_CLASSES + 1))
+    for c in range(_RADIUS_CLASSES):
+        members = order[bounds[c]:bounds[c + 1]]
+        for c0 in range(0, len(members), _GATHER_CHUNK):
+            sel = members[c0:c0 + _GATHER_CHUNK]
+            r_sel = radius[sel]
+            tree_v = cKDTree(vp["p"][sel])
+            pairs = tree_v.sparse_distance_matrix(tree_p, float(r_sel.max()), output_type="ndarray")
+            if len(pairs) == 0:
+                continue
+            i, j, dist = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64), pairs["v"]
+            v = sel[i]
+            ok = ((dist <= r_sel[i]) & (dot3(ph["wi"][j], vp["n"][v]) > 0)
+                  & (vp["depth"][v] + 1 + ph["depth"][j] <= max_depth))
+            v, j = v[ok], j[ok]
+            if len(v) == 0:
+                continue
+            contrib = ph["flux"][j] * vp["w"][v]
+            for ch in range(3):
+                phi[:, ch] += np.bincount(v, weights=contrib[:, ch], minlength=nv)
+            cnt += np.bincount(v, minlength=nv)
+    return phi, cnt
+
+
+# ---------------------------------------------------------------- the integrator
+def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
+                max_depth: int = 8, seed: int = 0, accel=None, *, prepared=None, alpha: float = ALPHA,
+                caustics: bool = True, callback=None) -> SPPMResult:
+    """Render ``camera``'s view of ``scene`` by stochastic progressive photon mapping.
+
+    passes: eye + photon passes (the image converges as passes grow). photons_per_pass: photons
+    emitted per pass. initial_radius: gather radius of every pixel at the start (scene units);
+    None: the median pixel footprint (eye path length / fx) of the first pass's visible points,
+    clamped to [1e-4, 0.05] x the scene extent (on the caustic bench scene twice that footprint
+    doubled the image RMSE at 32 passes: blur bias dominates). max_depth: maximum scattering events of
+    a full path. seed: the render's seed. accel: an :class:`render.accel.Accel` of ``scene`` to
+    reuse (or ``prepared``, a :class:`render.pathtracer.PreparedScene`). alpha: the fraction of
+    new photons kept per pass (0 < alpha < 1). caustics: False drops photons that scattered off
+    a specular surface (what the other integrators prune). callback: optional
+    ``callback(pass_done, image (H, W, 3) float64, radius (H, W) float64)`` after every pass,
+    with the estimate so far (for convergence studies).
+    """
+    from .pathtracer import PreparedScene, prepare
+
+    t0 = time.perf_counter()
+    passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
+    if passes < 1 or photons_per_pass < 1 or max_depth < 0:
+        raise ValueError("sppm: passes and photons_per_pass must be >= 1, max_depth >= 0")
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"sppm: alpha must lie in (0, 1), got {alpha}")
+    if initial_radius is not None and not (np.isfinite(initial_radius) and initial_radius > 0):
+        raise ValueError(f"sppm: initial_radius must be a positive finite number, got {initial_radius}")
+    if prepared is None:
+        if accel is not None:
+            from .bsdf import MaterialTable
+            from .lights import LightSet
+            from .scene import DirectionalLight, PointLight, SpotLight
+            mats = MaterialTable.from_scene(scene)
+            geom = accel.geometry
+            prepared = PreparedScene(geom, accel, mats, LightSet(scene, geom, mats),
+                                     np.asarray(scene.background, np.float64),
+                                     any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in scene.lights))
+        else:
+            prepared = prepare(scene)
+    ps = prepared
+    _check_supported(scene, ps.mats)
+    k = camera.intrinsics
+    h, w = k.height, k.width
+    npix = h * w
+    extent = ps.geom.extent
+    r_floor = 1e-9 * extent  # radii never reach zero
+    R = np.zeros(npix)
+    N = np.zeros(npix)
+    tau = np.zeros((npix, 3))
+    d_s1 = np.zeros((npix, 3))
+    d_s2 = np.zeros((npix, 3))
+    history = []
+    rays = 0
+    seed32 = int(seed) & 0xFFFFFFFF
+
+    def estimate(done: int) -> np.ndarray:
+        area = np.pi * R * R
+        ind = tau / (float(done) * photons_per_pass * np.maximum(area, 1e-300))[:, None]
+        ind = np.where(N[:, None] > 0, ind, 0.0)
+        return d_s1 / done + ind
+
+    for it in range(passes):
+        tp = time.perf_counter()
+        rng_eye = np.random.default_rng([seed32, it, 0])
+        rng_ph = np.random.default_rng([seed32, it, 1])
+        direct, vp, nr = _eye_pass(ps, camera, rng_eye, max_depth)
+        rays += nr
+        nee, nsh = _direct_at_visible_points(ps, vp, rng_eye)
+        rays += nsh
+        if len(vp["pix"]):
+            direct[vp["pix"]] += nee  # at most one visible point per pixel
+        d_s1 += direct
+        d_s2 += direct * direct
+        if it == 0:
+            if initial_radius is None:
+                fp = vp["footprint"][np.isfinite(vp["footprint"])]
+                r0 = float(np.median(fp)) if len(fp) else 1e-2 * extent
+                r0 = float(np.clip(r0, 1e-4 * extent, 5e-2 * extent))
+            else:
+                r0 = float(initial_radius)
+            R[:] = max(r0, r_floor)
+        ph, nr = _photon_pass(ps, photons_per_pass, rng_ph, max_depth, caustics)
+        rays += nr
+        vpix = vp["pix"]
+        phi, M = _gather(vp, R[vpix], ph, max_depth)
+        g = M > 0
+        if g.any():
+            px, m = vpix[g], M[g]
+            n_new = N[px] + alpha * m
+            r_new = np.maximum(R[px] * np.sqrt(n_new / (N[px] + m)), r_floor)
+            scale = (r_new / R[px]) ** 2
+            tau[px] = (tau[px] + phi[g]) * scale[:, None]
+            N[px], R[px] = n_new, r_new
+        history.append({"pass": it + 1, "mean_radius": float(R.mean()), "min_radius": float(R.min()),
+                        "visible_points": int(len(vpix)), "stored_photons": int(len(ph["p"])),
+                        "gathered": int(M.sum()), "time_s": time.perf_counter() - tp})
+        if callback is not None:
+            callback(it + 1, estimate(it + 1).reshape(h, w, 3), R.reshape(h, w).copy())
+    mean = estimate(passes)
+    if not np.all(np.isfinite(mean)):
+        raise FloatingPointError("sppm produced a non-finite radiance (a bug: please report)")
+    n = float(passes)
+    dvar = np.zeros_like(d_s1) if passes < 2 else np.maximum(d_s2 - d_s1 * d_s1 / n, 0.0) / (n * (n - 1.0))
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(passes * (npix + photons_per_pass)), "rays": int(rays)}
+    return SPPMResult(mean.reshape(h, w, 3), R.reshape(h, w), N.reshape(h, w), tau.reshape(h, w, 3),
+                      (d_s1 / n).reshape(h, w, 3), dvar.reshape(h, w, 3), passes, photons_per_pass, history, stats)
+
+
+def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None):
+    """:func:`render_sppm` as a :class:`render.film.RenderResult` (what render.pathtracer.render
+    returns): spp = passes, photons per pass from ``settings.photons_per_pass``.
+
+    The variance image is zero (no unbiased per-pixel variance exists for SPPM) and the film
+    holds mean x passes with zero spread; sample_range must start at 0 (progressive passes are
+    a chain: sppm renders of disjoint ranges do not merge, and refine() is not supported)."""
+    from .film import Film, RenderResult
+
+    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    if a != 0 or b < 1:
+        raise ValueError(f"integrator 'sppm' is progressive: its passes cannot be split or refined "
+                         f"(sample_range must be (0, passes), got {(a, b)})")
+    caustics = True if effects is None else "caustics" in frozenset(effects)
+    res = render_sppm(scene, camera, b, settings.photons_per_pass, max_depth=settings.max_depth, seed=settings.seed,
+                      prepared=prepared, caustics=caustics)
+    k = camera.intrinsics
+    film = Film(k.width, k.height)
+    m = res.mean.reshape(-1, 3)
+    film.n[:] = b
+    film.s1[:] = m * b
+    film.s2[:] = film.s1 * film.s1 / b
+    stats = dict(res.stats)
+    stats["photons_per_pass"] = int(settings.photons_per_pass)
+    stats["mean_final_radius"] = float(res.radius.mean())
+    return RenderResult(res.mean.astype(np.float32), np.zeros((k.height, k.width, 3), np.float32), b, (0, b), film,
+                        "sppm", stats)
