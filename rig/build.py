@@ -17,6 +17,7 @@ from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, Poi
                    RoughDielectricSpec, SceneSpec,
                    ShapeSpec, SpecError, SpotLightSpec, load_spec)
 from .textures import load_texture
+from .volumes import load_density_file, smoke_density
 
 __all__ = ["RigScene", "build_scene", "load_scene", "quad_mesh", "box_face_quads"]
 
@@ -94,6 +95,23 @@ def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) ->
     return m
 
 
+def _density(medium, up: np.ndarray, base_dir: Path, where: str) -> np.ndarray | None:
+    """A medium's (X, Y, Z) density grid, or None for a homogeneous medium."""
+    d = medium.density
+    if d is None:
+        return None
+    if d.smoke is not None:
+        return smoke_density(d.smoke.resolution, d.smoke.seed, d.smoke.octaves, up_axis=int(np.argmax(np.abs(up))))
+    path = Path(d.file)
+    path = path if path.is_absolute() else base_dir / path
+    if not path.is_file():
+        raise SpecError(f"{where}.file: density file not found: {path}")
+    try:
+        return load_density_file(path)
+    except ValueError as exc:
+        raise SpecError(f"{where}.file: {exc}") from None
+
+
 def _material(spec, textures: dict[str, np.ndarray]):
     if isinstance(spec, LambertianSpec):
         return Lambertian(np.array(spec.albedo), textures[spec.texture] if spec.texture else None)
@@ -167,7 +185,8 @@ def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
         else:
             lights.append(DirectionalLight(np.array(light.direction), np.array(light.irradiance)))
     media = [Medium(_shape_mesh(m.bounds, up, base_dir, f"media.{i}.bounds"), np.array(m.sigma_a),
-                    np.array(m.sigma_s), np.array(m.emission), m.g) for i, m in enumerate(spec.media)]
+                    np.array(m.sigma_s), np.array(m.emission), m.g, _density(m, up, base_dir, f"media.{i}.density"))
+             for i, m in enumerate(spec.media)]
     try:
         scene = Scene(spec.name, objects, lights, media, np.array(spec.background), up,
                       frozenset(spec.effects) if spec.effects is not None else None)

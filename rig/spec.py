@@ -248,13 +248,40 @@ class DirectionalLightSpec(_Strict):
 LightSpec = Annotated[Union[PointLightSpec, SpotLightSpec, DirectionalLightSpec], Field(discriminator="type")]
 
 
+class SmokeDensity(_Strict):
+    """Procedural plume (rig.volumes.smoke_density) rising along the scene's up axis."""
+    resolution: int = Field(32, ge=4, le=256)
+    seed: int = 0
+    octaves: int = Field(4, ge=1, le=8)
+
+
+class DensitySpec(_Strict):
+    """Voxel grid scaling a medium's coefficients over its bounds' box: a .npy (X, Y, Z) file
+    (relative to the spec's folder) or a procedural smoke plume."""
+    file: str | None = None
+    smoke: SmokeDensity | None = None
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        if (self.file is None) == (self.smoke is None):
+            raise ValueError("a density has exactly one of: file, smoke")
+        return self
+
+
 class MediumSpec(_Strict):
-    """Participating medium (data only for now)."""
+    """Participating medium bounded by a closed shape: coefficients per scene unit (render.media),
+    optionally scaled by a density grid (heterogeneous)."""
     bounds: ShapeSpec
     sigma_a: Rgb = (0.0, 0.0, 0.0)
     sigma_s: Rgb = (0.0, 0.0, 0.0)
     emission: Rgb = (0.0, 0.0, 0.0)
     g: float = Field(0.0, gt=-1, lt=1)
+    density: DensitySpec | None = None
+
+    @field_validator("sigma_a", "sigma_s", "emission")
+    @classmethod
+    def _nonneg(cls, v, info):
+        return _non_negative(v, info.field_name)
 
 
 # ---------------------------------------------------------------- cameras

@@ -103,3 +103,58 @@ def test_texture_on_shape_without_uv_is_refused(tmp_path):
                         materials={"grey": {"type": "lambertian", "texture": "n"}})
     with pytest.raises(SpecError, match="texture coordinates"):
         load_scene(_write(tmp_path, data))
+
+
+# ---------------------------------------------------------------- heterogeneous media
+def _fog(**medium) -> dict:
+    m = {"bounds": {"box": {"size": [1, 1, 1], "center": [0, 0, 0.5]}}, "sigma_s": [1, 1, 1]}
+    m.update(medium)
+    return minimal_spec(media=[m])
+
+
+def test_smoke_density_is_deterministic_bounded_and_fades_at_the_box():
+    from rig.volumes import smoke_density
+
+    a, b = smoke_density(24, seed=3), smoke_density(24, seed=3)
+    assert np.array_equal(a, b) and not np.array_equal(a, smoke_density(24, seed=4))
+    assert a.min() >= 0 and a.max() == 1.0 and np.all(np.isfinite(a))
+    # the plume never touches the sides or the bottom of its box (no visible box edges)
+    assert a[0].max() == a[-1].max() == a[:, 0].max() == a[:, -1].max() == a[:, :, 0].max() == 0
+    assert 0.05 < (a > 0).mean() < 0.5
+
+
+def test_glowing_smoke_scene_has_a_grid_medium_and_needs_volpath():
+    from render.effects import scene_effects
+    from render.pathtracer import choose_integrator
+
+    rig = load_scene("glowing_smoke")
+    (medium,) = rig.scene.media
+    assert medium.density is not None and medium.density.ndim == 3 and medium.emission.max() > 0
+    assert choose_integrator(scene_effects(rig.scene)) == "volpath"
+
+
+def test_density_file_is_loaded_and_checked(tmp_path):
+    grid = np.zeros((4, 5, 6))
+    grid[1:3, 1:4, 2:5] = 2.0
+    np.save(tmp_path / "g.npy", grid)
+    rig = load_scene(_write(tmp_path, _fog(density={"file": "g.npy"})))
+    assert np.array_equal(rig.scene.media[0].density, grid)
+    np.save(tmp_path / "bad.npy", -grid)
+    with pytest.raises(SpecError, match=r"media\.0\.density\.file: .*non-negative"):
+        load_scene(_write(tmp_path, _fog(density={"file": "bad.npy"})))
+    with pytest.raises(SpecError, match=r"media\.0\.density\.file: density file not found"):
+        load_scene(_write(tmp_path, _fog(density={"file": "missing.npy"})))
+    (tmp_path / "text.npy").write_text("not an array")
+    with pytest.raises(SpecError, match=r"media\.0\.density\.file: .*not a readable"):
+        load_scene(_write(tmp_path, _fog(density={"file": "text.npy"})))
+
+
+@pytest.mark.parametrize("medium, field", [
+    ({"density": {"file": "g.npy", "smoke": {"resolution": 8}}}, "media.0.density"),
+    ({"density": {"smoke": {"resolution": 2}}}, "media.0.density.smoke.resolution"),
+    ({"sigma_a": [-1, 0, 0]}, "media.0.sigma_a"),
+])
+def test_malformed_medium_names_the_field(tmp_path, medium, field):
+    with pytest.raises(SpecError) as err:
+        load_scene(_write(tmp_path, _fog(**medium)))
+    assert field in str(err.value) and "\n" not in str(err.value)
