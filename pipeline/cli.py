@@ -126,7 +126,7 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
 def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          poses: Optional[Path] = typer.Option(None, help="a poses folder (default: the capture's own cameras)"),
          model: str = typer.Option("fast", help="fast (factored grid + tiny MLP) | vanilla (Mildenhall et al.) | "
-                                                "no_view_dependence | no_positional_encoding"),
+                                                "ablations: vanilla_noview, vanilla_nope, fast_noview"),
          minutes: float = typer.Option(10.0, help="training budget in minutes of wall time"),
          out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../nerf/<model>)"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against "
