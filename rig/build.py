@@ -15,7 +15,7 @@ from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Me
 from .layouts import layout_cameras, make_intrinsics
 from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, RoughConductorSpec,
                    RoughDielectricSpec, SceneSpec,
-                   ShapeSpec, SpecError, SpotLightSpec, load_spec)
+                   ShapeSpec, SpecError, SpotLightSpec, load_spec, resolve_scene_path)
 from .textures import load_texture
 from .volumes import load_density_file, smoke_density
 
@@ -201,4 +201,7 @@ def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
 def load_scene(scene: str | Path) -> RigScene:
     """Load a built-in scene name or a YAML path into a :class:`RigScene` (SpecError on bad input)."""
     spec, base_dir = load_spec(scene)
-    return build_scene(spec, base_dir)
+    try:
+        return build_scene(spec, base_dir)
+    except SpecError as exc:  # name the file as load_spec's errors do
+        raise SpecError(f"{resolve_scene_path(scene)}: {exc}") from None

@@ -33,7 +33,8 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
     plan = plan_capture(rig)
     splits = tuple(s for s in SPLITS if s in rig.cameras) or ("scene",)
     manifest = Manifest("capture", params={"scene": rig.scene.name, "seed": seed, "renderer": plan.renderer,
-                                           "effects": sorted(plan.effects), "splits": list(splits)})
+                                           "effects": sorted(plan.effects), "splits": list(splits),
+                                           "renderer_reasons": list(plan.reasons)})
     manifest.add_input(scene_file)
     if plan.renderer != "raster" and not quiet:
         console.print(f"capture: '{rig.scene.name}' is path traced, the rasterizer cannot simulate it exactly: "

@@ -20,16 +20,40 @@ def _leftovers(folder: Path) -> list[Path]:
     return [p for p in folder.rglob("*") if ".partial" in p.name] if folder.exists() else []
 
 
-def test_malformed_scene_exits_2_with_one_line_and_writes_nothing(tmp_path):
+def _negative_width(s):
+    s["cameras"]["intrinsics"]["width"] = -64
+
+
+def _unknown_field(s):
+    s["objects"][0]["colour"] = "red"
+
+
+def _wrong_type(s):
+    s["cameras"]["intrinsics"]["height"] = "tall"
+
+
+def _missing_mesh(s):
+    s["objects"][0]["shape"] = {"mesh": {"file": "bunny.obj"}}
+    s["objects"][0]["material"] = s["objects"][0].pop("face_materials")[1]
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (_negative_width, "cameras.intrinsics.width"),
+    (_unknown_field, "objects.0.colour"),
+    (_wrong_type, "cameras.intrinsics.height"),
+    (_missing_mesh, "bunny.obj"),
+], ids=["negative_resolution", "unknown_field", "wrong_type", "missing_mesh_file"])
+def test_malformed_scene_exits_2_with_one_line_and_writes_nothing(tmp_path, mutate, field):
+    """The four malformed scenes of the foundation issue, through the real CLI process."""
     bad = copy.deepcopy(TINY_SCENE)
-    bad["cameras"]["intrinsics"]["width"] = -64
+    mutate(bad)
     scene = write_scene(tmp_path / "scenes", bad)
     out = tmp_path / "out" / "capture"
     proc = subprocess.run([sys.executable, "-m", "pipeline", "capture", str(scene), "--out", str(out), "--quiet"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "cameras.intrinsics.width" in lines[0] and "tiny.yaml" in lines[0]
+    assert len(lines) == 1 and field in lines[0] and "tiny.yaml" in lines[0], lines
     assert not out.exists() and not _leftovers(tmp_path / "out")
 
 
@@ -76,6 +100,32 @@ def test_capture_folder_is_complete_and_consistent(tiny_capture):
     assert [c.name for c in train] == [c.name for c, s in zip(cams, splits) if s == "train"]
     assert set(m["outputs"]) >= {"cameras.json", "targets.json", "colmap/images.txt"}
     assert not _leftovers(out.parent)
+
+
+def test_capture_switches_to_the_path_tracer_when_the_rasterizer_cannot(tiny_capture, tmp_path):
+    """A mirror face on the cube: the rasterizer cannot simulate it, so capture path traces the
+    scene, says why in its manifest, and writes the same geometry buffers as the rasterizer
+    (z-depth within 1 mm where both see the subject, masks agreeing on > 97% of the union)."""
+    _, raster_out = tiny_capture
+    spec = copy.deepcopy(TINY_SCENE)
+    spec["materials"]["chrome"] = {"type": "mirror", "reflectance": [0.9, 0.9, 0.9]}
+    spec["objects"][0]["face_materials"][1] = "chrome"
+    scene = write_scene(tmp_path / "scenes", spec)
+    out = tmp_path / "capture"
+    assert main(["capture", str(scene), "--out", str(out), "--quiet", "--seed", "3"]) == 0
+    m = read_manifest(out)
+    assert m["params"]["renderer"] == "pathtracer"
+    assert any("cube" in r and "Mirror" in r for r in m["params"]["renderer_reasons"])
+    assert read_manifest(raster_out)["params"]["renderer_reasons"] == []
+    for exr in sorted((out / "depth").glob("*.exr")):
+        d_pt, d_r = read_exr(exr), read_exr(raster_out / "depth" / exr.name)
+        m_pt = read_png(out / "masks" / f"{exr.stem}.png") > 0
+        m_r = read_png(raster_out / "masks" / f"{exr.stem}.png") > 0
+        assert (m_pt ^ m_r).sum() < 0.03 * (m_pt | m_r).sum()
+        both = m_pt & m_r
+        assert np.median(np.abs(d_pt[both] - d_r[both])) < 1e-3
+        rgb = read_exr(out / "linear" / exr.name)
+        assert np.all(np.isfinite(rgb)) and rgb.max() > 0
 
 
 def test_same_seed_gives_byte_identical_capture(tiny_capture, tmp_path):
