@@ -16,6 +16,14 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
                   help="lumigraph: capture, estimate poses, build light slabs and NeRFs, validate against a path tracer.")
 
 QUIET = typer.Option(False, "--quiet", "-q", help="no progress bar")
+SCHEDULER = typer.Option(None, envvar="LUMIGRAPH_SCHEDULER", help="existing Dask scheduler address (default: local)")
+WORKERS = typer.Option(None, help="local Dask workers (default: cores/2, in process when that is 1; 0: in process)")
+
+
+def _cluster(scheduler: Optional[str], workers: Optional[int]):
+    from .distributed import ClusterConfig
+
+    return ClusterConfig(scheduler=scheduler, workers=workers)
 
 
 def _load(scene: str):
@@ -30,13 +38,15 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
             out: Optional[Path] = typer.Option(None, help="capture folder (default artifacts/<scene>/capture)"),
             seed: Optional[int] = typer.Option(None, help="seed for sensor noise (default: the spec's)"),
             root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+            scheduler: Optional[str] = SCHEDULER,
+            workers: Optional[int] = WORKERS,
             quiet: bool = QUIET):
     """Render a scene's train and test views with ground-truth cameras."""
     from .stages.capture import run_capture
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "capture", root)
-    m = run_capture(rig, path, out, seed, quiet)
+    m = run_capture(rig, path, out, seed, quiet, _cluster(scheduler, workers))
     typer.echo(f"capture: {m['metrics']['views']} views ({m['params']['renderer']}) in {m['wall_time_s']:.1f} s -> {out}")
 
 
@@ -50,18 +60,16 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               max_depth: int = typer.Option(8, help="maximum bounces"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
-              scheduler: Optional[str] = typer.Option(None, envvar="LUMIGRAPH_SCHEDULER",
-                                                      help="existing Dask scheduler address (default: local)"),
-              workers: Optional[int] = typer.Option(None, help="local Dask workers (default: cores/2; 0: in process)"),
+              scheduler: Optional[str] = SCHEDULER,
+              workers: Optional[int] = WORKERS,
               quiet: bool = QUIET):
     """Path-traced reference renders of a scene's views, with per-pixel variance images."""
-    from .distributed import ClusterConfig
     from .stages.reference import run_reference
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "reference", root)
     m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet,
-                      ClusterConfig(scheduler=scheduler, workers=workers))
+                      _cluster(scheduler, workers))
     typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
 
@@ -105,6 +113,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          compress: bool = typer.Option(True, "--compress/--no-compress",
                                        help="also vector-quantize the slabs and score the views from them"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
+         scheduler: Optional[str] = SCHEDULER,
+         workers: Optional[int] = WORKERS,
          quiet: bool = QUIET):
     """Build light slabs from a capture; render and score its held-out views."""
     from recon.slab import LayoutConfig
@@ -117,7 +127,7 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "slab"
-    m = run_slab(capture_dir, poses, out, cfg, reference, quiet)
+    m = run_slab(capture_dir, poses, out, cfg, reference, quiet, _cluster(scheduler, workers))
     mt = m["metrics"]
     typer.echo(f"slab: {mt['mode']} PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} -> {out}")
 
@@ -134,12 +144,15 @@ def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          downsample: Optional[int] = typer.Option(None, help="train at capture size / N (default: ~160 px wide)"),
          seed: int = typer.Option(0, help="training seed"),
          resume: bool = typer.Option(False, help="continue an interrupted run's checkpoint"),
+         scheduler: Optional[str] = SCHEDULER,
+         workers: Optional[int] = WORKERS,
          quiet: bool = QUIET):
     """Train a radiance field from a capture; render and score its held-out views."""
     from .stages.nerf import run_nerf
 
     out = out or capture_dir.parent / "nerf" / model
-    m = run_nerf(capture_dir, poses, model, minutes, out, reference, downsample, seed, resume=resume, quiet=quiet)
+    m = run_nerf(capture_dir, poses, model, minutes, out, reference, downsample, seed, resume=resume, quiet=quiet,
+                 cluster=_cluster(scheduler, workers))
     mt = m["metrics"]
     typer.echo(f"nerf {model}: PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} after {mt['steps']} steps "
                f"in {mt['train_s']:.0f} s -> {out}")
@@ -208,14 +221,18 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
         colmap_image_scale: float = typer.Option(0.5, help="COLMAP's image scale (params.yaml poses.image_scale)"),
         nerf_model: str = typer.Option("fast", help="NeRF model"),
         nerf_minutes: float = typer.Option(4.0, help="NeRF training budget (0: skip the NeRF)"),
+        scheduler: Optional[str] = SCHEDULER,
+        workers: Optional[int] = WORKERS,
         quiet: bool = QUIET):
     """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, NeRF, validate,
-    report; ends with the report's path."""
+    report; ends with the report's path. One engine (in process, a local cluster or --scheduler's)
+    serves every stage's units of work."""
     from .pipeline_run import run_pipeline
 
     rig, path = _load(scene)
     summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, colmap_image_scale=colmap_image_scale,
-                           nerf_model=nerf_model, nerf_minutes=nerf_minutes, quiet=quiet)
+                           nerf_model=nerf_model, nerf_minutes=nerf_minutes, quiet=quiet,
+                           cluster=_cluster(scheduler, workers))
     for line in summary:
         typer.echo(line)
 

@@ -11,7 +11,9 @@ finished into a small result that travels back to the client::
 Because every unit is a pure function and the fold order is fixed (sample order, left fold,
 never a tree whose shape follows the number of workers), results are bit-identical for any
 number of workers, in or out of process. Units run in parallel; the fold of a group is a chain of
-cheap tasks on the workers, so only one finished result per group reaches the client.
+cheap tasks on the workers, so only one finished result per group reaches the client. Stages
+whose unit is a whole result (a captured view, a row of slab cameras, a held-out render) use
+:func:`map_units`: groups of one unit, nothing folded.
 
 Engines:
 
@@ -47,7 +49,7 @@ from typing import Any, Callable, Iterator, Sequence
 from .artifacts import BadInput
 
 __all__ = ["ENV_SCHEDULER", "TASK_THREADS", "ClusterConfig", "default_workers", "LocalEngine", "DaskEngine", "engine", "worker_cache",
-           "machine_cores", "resolve_scheduler", "local_cluster"]
+           "release_cached", "map_units", "machine_cores", "resolve_scheduler", "local_cluster"]
 
 #: environment variable naming an existing scheduler (same as ``--scheduler``)
 ENV_SCHEDULER = "LUMIGRAPH_SCHEDULER"
@@ -152,6 +154,19 @@ def worker_cache(key: str, build: Callable[[], Any]) -> Any:
         return value
 
 
+def release_cached(prefix: str) -> int:
+    """Drop this process's :func:`worker_cache` entries whose key starts with ``prefix``, calling
+    ``close()`` on values that have one (a GL context); returns how many were dropped."""
+    with _CACHE_LOCK:
+        keys = [k for k in _CACHE if k.startswith(prefix)]
+        values = [_CACHE.pop(k) for k in keys]
+    for v in values:
+        close = getattr(v, "close", None)
+        if callable(close):
+            close()
+    return len(values)
+
+
 # --------------------------------------------------------------------------------------------
 # the ordered fold, in process
 
@@ -173,7 +188,11 @@ class LocalEngine:
     def share(self, obj) -> Shared:
         return Shared(f"shared-{uuid.uuid4().hex}", obj)
 
-    def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable,
+    def release(self, shared: Shared) -> None:
+        """Free what units built from ``shared`` in :func:`worker_cache` (keys starting with its key)."""
+        release_cached(shared.key)
+
+    def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable | None,
                     shared: Sequence[Shared] = (), on_unit: Callable[[], None] | None = None,
                     on_group: Callable[[int, Any], None] | None = None, name: str = "unit") -> None:
         """For each group g: ``on_group(g, finish(left fold of work(*shared values, *unit)))``;
@@ -187,7 +206,7 @@ class LocalEngine:
                 if on_unit:
                     on_unit()
             if on_group:
-                on_group(g, finish(acc))
+                on_group(g, acc if finish is None else finish(acc))
 
 
 # --------------------------------------------------------------------------------------------
@@ -234,6 +253,14 @@ class DaskEngine:
             fut = self.client.submit(_identity, obj, key=f"shared-{uuid.uuid4().hex}", pure=False)
         return Shared(fut.key, fut)
 
+    def release(self, shared: Shared) -> None:
+        """Free what units built from ``shared`` in each worker's :func:`worker_cache` (best effort:
+        a worker that does not answer is skipped)."""
+        try:
+            self.client.run(release_cached, shared.key, on_error="ignore")
+        except Exception:  # noqa: BLE001 - a cluster in trouble: the stage's own error matters more
+            pass
+
     def _check_workers(self, since: list[float]) -> None:
         if self.client.nthreads():
             since[0] = time.monotonic()
@@ -241,13 +268,14 @@ class DaskEngine:
             raise RuntimeError(f"dask cluster at {self.client.scheduler.address} has had no worker for "
                                f"{self.config.no_workers_timeout_s:.0f} s")
 
-    def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable,
+    def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable | None,
                     shared: Sequence[Shared] = (), on_unit: Callable[[], None] | None = None,
                     on_group: Callable[[int, Any], None] | None = None, name: str = "unit") -> None:
         """Submit every unit ``work(*shared, *unit)``, chain ``fold`` over each group's results in
-        unit order and ``finish`` the last, all on the workers; call ``on_unit()`` as units
-        finish (any order) and ``on_group(g, result)`` as groups finish (any order). Raises the
-        first failed task's exception after cancelling the rest."""
+        unit order and ``finish`` the last (None: the group's result is the fold itself, no
+        task), all on the workers; call ``on_unit()`` as units finish (any order) and
+        ``on_group(g, result)`` as groups finish (any order). Raises the first failed task's
+        exception after cancelling the rest."""
         from distributed import wait
 
         client, run = self.client, uuid.uuid4().hex[:8]
@@ -263,7 +291,8 @@ class DaskEngine:
                     units[part.key] = part
                     acc = part if acc is None else client.submit(fold, acc, part, key=f"fold-{run}-{g}-{i}",
                                                                   retries=self.config.retries)
-                fin = client.submit(finish, acc, key=f"finish-{run}-{g}", retries=self.config.retries)
+                fin = acc if finish is None else client.submit(finish, acc, key=f"finish-{run}-{g}",
+                                                                retries=self.config.retries)
                 finals[fin.key] = (g, fin)
                 del acc, part  # the client holds units (for progress) and finals only
             pending = set(units.values()) | {f for _, f in finals.values()}
@@ -280,20 +309,32 @@ class DaskEngine:
                     if fut.status != "finished":
                         fut.result()  # re-raises the task's own exception (or CancelledError)
                         raise RuntimeError(f"dask task {fut.key} ended as {fut.status}")
+                    if fut.key in units:  # (a one-unit group without finish: a unit and a final)
+                        del units[fut.key]
+                        if on_unit:
+                            on_unit()
                     if fut.key in finals:
                         g, _ = finals.pop(fut.key)
                         value = fut.result()
                         if on_group:
                             on_group(g, value)
-                    else:
-                        del units[fut.key]
-                        if on_unit:
-                            on_unit()
                 del done
         finally:
-            left = list(units.values()) + [f for _, f in finals.values()]
+            left = list({f.key: f for f in list(units.values()) + [f for _, f in finals.values()]}.values())
             if left:
                 client.cancel(left)
+
+
+def _no_fold(acc, part):  # pragma: no cover - map_units' groups have one unit
+    raise AssertionError("map_units folds nothing")
+
+
+def map_units(eng: "LocalEngine | DaskEngine", work: Callable, units: Sequence[tuple], shared: Sequence[Shared] = (),
+              on_result: Callable[[int, Any], None] | None = None, name: str = "unit") -> None:
+    """Independent units, no fold: ``on_result(i, work(*shared values, *units[i]))`` as each
+    finishes (in unit order in process, any order on Dask; one task per unit). For stages whose
+    unit is a whole view, a row of slab cameras, etc."""
+    eng.fold_groups(work, [[u] for u in units], _no_fold, None, shared=shared, on_group=on_result, name=name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -312,16 +353,20 @@ def local_cluster(workers: int, dashboard: bool = True):
 
 
 @contextmanager
-def engine(config: ClusterConfig | None = None, quiet: bool = False, echo: Callable[[str], None] | None = None
-           ) -> Iterator[LocalEngine | DaskEngine]:
+def engine(config: "ClusterConfig | LocalEngine | DaskEngine | None" = None, quiet: bool = False,
+           echo: Callable[[str], None] | None = None) -> Iterator[LocalEngine | DaskEngine]:
     """The engine a stage runs on, started and stopped with the stage.
 
-    None or ``workers=0`` without a scheduler: :class:`LocalEngine`. A scheduler address (argument
+    An engine already open (``lumigraph run`` opens one for all its stages): that engine, left
+    open. None or ``workers=0`` without a scheduler: :class:`LocalEngine`. A scheduler address (argument
     or ``LUMIGRAPH_SCHEDULER``): a client of that cluster (BadInput naming it if unreachable).
     Otherwise a :class:`distributed.LocalCluster` of ``config.local_workers`` single-threaded
     worker processes on loopback, dashboard on a free port. Unless ``quiet``,
     prints the cluster and its dashboard address through ``echo`` (default: stderr).
     """
+    if isinstance(config, (LocalEngine, DaskEngine)):
+        yield config
+        return
     if config is None or config.in_process:
         yield LocalEngine()
         return

@@ -7,6 +7,7 @@ from pathlib import Path
 from rig.build import RigScene
 
 from .artifacts import BadInput, stage_dir
+from .distributed import ClusterConfig, engine
 from .inspect import inspect_folder
 
 __all__ = ["run_pipeline"]
@@ -14,9 +15,15 @@ __all__ = ["run_pipeline"]
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
                  colmap_image_scale: float = 0.5, nerf_model: str = "fast", nerf_minutes: float = 4.0,
-                 quiet: bool = False) -> list[str]:
+                 quiet: bool = False, cluster: ClusterConfig | None = None) -> list[str]:
     """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab (direct,
     and rebinned on COLMAP's cameras when they exist), NeRF, validate and report.
+
+    cluster: one engine for every stage (pipeline.distributed; started once, dashboard printed
+    once): None in this process; a :class:`ClusterConfig` whose default (no scheduler, no
+    ``workers``) is sized to the machine and in process on 2 cores (docs/scaling.md). Capture,
+    reference, slab and NeRF renders run their units on it; poses, NeRF training and validate run
+    in this process.
 
     Returns summary lines, the last one the report's path. A stage that fails on its input
     (BadInput) stops the run, except a failed pose estimate: that is a finding, recorded in its
@@ -33,54 +40,56 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
     from .stages.slab import SlabStageConfig, run_slab
     from .stages.validate import run_validate
 
-    name = rig.scene.name
-    t0 = time.perf_counter()
-    lines = []
-    cap = stage_dir(name, "capture", root)
-    m = run_capture(rig, scene_file, cap, seed, quiet)
-    lines.append(f"capture    {m['metrics']['views']} views, {m['params']['renderer']}, {m['wall_time_s']:.1f} s")
-    if not quiet:
-        inspect_folder(cap)
-    if "test" not in rig.cameras:
-        lines.append("no held-out views: the model stages need a 'test' split; stopping after capture")
-        return lines
-    ref = stage_dir(name, "reference", root)
-    m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet)
-    lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
-                 f"{m['wall_time_s']:.1f} s")
-    methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])
-    estimated = {}
-    for method in methods:
-        out = stage_dir(name, f"poses/{method}", root)
-        try:
-            m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet)
-        except BadInput as exc:
-            lines.append(f"poses      {method}: failed: {exc}")
-            continue
-        estimated[method] = out
-        mt = m["metrics"]
-        lines.append(f"poses      {method}: {mt['views_registered']}/{mt['views_total']} views, rotation error "
-                     f"{mt['rotation_error_deg_mean']:.4f} deg mean, {m['wall_time_s']:.1f} s")
+    with engine(cluster, quiet) as eng:
+        name = rig.scene.name
+        t0 = time.perf_counter()
+        lines = []
+        cap = stage_dir(name, "capture", root)
+        m = run_capture(rig, scene_file, cap, seed, quiet, eng)
+        lines.append(f"capture    {m['metrics']['views']} views, {m['params']['renderer']}, {m['wall_time_s']:.1f} s")
+        if not quiet:
+            inspect_folder(cap)
+        if "test" not in rig.cameras:
+            lines.append("no held-out views: the model stages need a 'test' split; stopping after capture")
+            return lines
+        ref = stage_dir(name, "reference", root)
+        m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet, cluster=eng)
+        lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
+                     f"{m['wall_time_s']:.1f} s")
+        methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])
+        estimated = {}
+        for method in methods:
+            out = stage_dir(name, f"poses/{method}", root)
+            try:
+                m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet)
+            except BadInput as exc:
+                lines.append(f"poses      {method}: failed: {exc}")
+                continue
+            estimated[method] = out
+            mt = m["metrics"]
+            lines.append(f"poses      {method}: {mt['views_registered']}/{mt['views_total']} views, rotation error "
+                         f"{mt['rotation_error_deg_mean']:.4f} deg mean, {m['wall_time_s']:.1f} s")
 
-    def slab_line(label: str, m: dict) -> str:
-        return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
-                f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
+        def slab_line(label: str, m: dict) -> str:
+            return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
+                    f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
 
-    lines.append(slab_line("slab", run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet)))
-    if "colmap" in estimated:
-        m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root), SlabStageConfig(method="rebin"),
-                     reference_dir=ref, quiet=quiet)
-        lines.append(slab_line("slab-colmap", m))
-    if nerf_minutes > 0:
-        m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
-                     seed=seed or 0, quiet=quiet)
-        mt = m["metrics"]
-        lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
-                     f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")
-    m = run_validate(stage_dir(name, "", root), quiet=quiet)
-    best = m["metrics"]["best"]
-    lines.append(f"validate   {m['metrics']['models']} models; best at the held-out views: {best}")
-    report = write_report(stage_dir(name, "", root))
-    lines.append(f"total      {time.perf_counter() - t0:.1f} s; artifacts in {Path(root) / name}")
-    lines.append(f"report     {report}")
+        m = run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet, cluster=eng)
+        lines.append(slab_line("slab", m))
+        if "colmap" in estimated:
+            m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root), SlabStageConfig(method="rebin"),
+                         reference_dir=ref, quiet=quiet, cluster=eng)
+            lines.append(slab_line("slab-colmap", m))
+        if nerf_minutes > 0:
+            m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
+                         seed=seed or 0, quiet=quiet, cluster=eng)
+            mt = m["metrics"]
+            lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
+                         f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")
+        m = run_validate(stage_dir(name, "", root), quiet=quiet)
+        best = m["metrics"]["best"]
+        lines.append(f"validate   {m['metrics']['models']} models; best at the held-out views: {best}")
+        report = write_report(stage_dir(name, "", root))
+        lines.append(f"total      {time.perf_counter() - t0:.1f} s; artifacts in {Path(root) / name}")
+        lines.append(f"report     {report}")
     return lines

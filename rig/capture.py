@@ -18,7 +18,8 @@ from render.scene import DirectionalLight, PointLight, SpotLight
 
 from .build import RigScene
 
-__all__ = ["CapturedView", "CapturePlan", "plan_capture", "capture_views", "CaptureError"]
+__all__ = ["CapturedView", "CapturePlan", "plan_capture", "capture_views", "capture_list", "check_capture",
+           "render_ideal", "finish_view", "sensor_config", "CaptureError", "CAPTURE_SPP"]
 
 
 class CaptureError(ValueError):
@@ -44,7 +45,8 @@ class CapturePlan:
     reasons: list[str]  # why the path tracer is needed (empty for the rasterizer)
 
 
-def _sensor_config(rig: RigScene):
+def sensor_config(rig: RigScene):
+    """The spec's sensor as a :class:`rig.sensor.SensorConfig`."""
     from .sensor import SensorConfig
 
     s = rig.spec.sensor
@@ -60,7 +62,7 @@ def plan_capture(rig: RigScene) -> CapturePlan:
     """Decide the renderer from the scene's effects; never silently simulate less."""
     from .sensor import sensor_effects
 
-    effects = scene_effects(rig.scene, sensor_effects(_sensor_config(rig)))
+    effects = scene_effects(rig.scene, sensor_effects(sensor_config(rig)))
     reasons = raster_limitations(rig.scene, effects)
     return CapturePlan("pathtracer" if reasons else "raster", effects, reasons)
 
@@ -73,56 +75,95 @@ def _ideal(k: Intrinsics) -> Intrinsics:
     return Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
 
 
-def _pathtraced_views(rig: RigScene, views, plan: CapturePlan, spp: int, seed: int):
-    from render import pathtracer
-    from render.gbuffer import first_hit_buffers
-
-    settings = pathtracer.RenderSettings(integrator="auto", spp=spp, seed=seed)
-    try:
-        pathtracer.choose_integrator(plan.effects - frozenset(SENSOR_EFFECTS), "auto", _has_delta_lights(rig))
-    except ValueError as exc:
-        raise CaptureError(f"scene '{rig.scene.name}': {exc}") from None
-    prepared = pathtracer.prepare(rig.scene)
-    for split, cam in views:
-        ideal = Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name)
-        result = pathtracer.render(rig.scene, ideal, settings, effects=plan.effects - frozenset(SENSOR_EFFECTS), prepared=prepared)
-        depth, mask = first_hit_buffers(rig.scene, ideal, prepared.accel)
-        yield split, cam, result.mean, depth, mask
+#: path tracer samples per pixel of a path-traced capture
+CAPTURE_SPP = 64
 
 
-def capture_views(rig: RigScene, seed: int = 0, splits: tuple[str, ...] = ("train", "test"),
-                  spp: int = 64) -> Iterator[CapturedView]:
-    """Render the cameras of ``splits`` (those the scene has) in order; deterministic in ``seed``.
-
-    Each view's sensor noise uses its own generator seeded by (seed, view index), so any subset
-    of views reproduces the same bytes.
-    """
-    from .sensor import apply_sensor, distort_map
-
-    plan = plan_capture(rig)
+def capture_list(rig: RigScene, splits: tuple[str, ...] = ("train", "test")) -> list[tuple[str, Camera]]:
+    """(split, camera) of every view of ``splits`` the scene has, in capture order (a view's
+    index in this list seeds its sensor noise). CaptureError when there are none."""
     views = [(split, cam) for split in splits for cam in rig.cameras.get(split, [])]
     if not views:
         raise CaptureError(f"scene '{rig.scene.name}' has no cameras in splits {list(splits)} "
                            f"(it has: {sorted(rig.cameras)})")
-    config = _sensor_config(rig)
+    return views
+
+
+def check_capture(rig: RigScene, plan: CapturePlan) -> None:
+    """CaptureError when the path tracer has no integrator for a path-traced plan's effects."""
     if plan.renderer == "raster":
-        frames = _rasterized_views(rig, views)
+        return
+    from render import pathtracer
+
+    try:
+        pathtracer.choose_integrator(plan.effects - frozenset(SENSOR_EFFECTS), "auto", _has_delta_lights(rig))
+    except ValueError as exc:
+        raise CaptureError(f"scene '{rig.scene.name}': {exc}") from None
+
+
+def render_ideal(scene, plan: CapturePlan, cam: Camera, renderer, seed: int = 0, spp: int = CAPTURE_SPP,
+                 threads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rgb, z-depth, subject mask) of ``cam``'s ideal pinhole view (distortion ignored).
+
+    renderer: for a ``raster`` plan anything with ``render(camera) -> rig.raster.RasterFrame``
+    (a :class:`rig.raster.RasterRenderer` of the view's size); for a path-traced plan the scene's
+    :class:`render.pathtracer.PreparedScene`. threads: path tracer threads (never change the
+    result)."""
+    ideal = Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name)
+    if plan.renderer == "raster":
+        frame = renderer.render(ideal)
+        return frame.rgb, frame.depth, frame.mask
+    from render import pathtracer
+    from render.gbuffer import first_hit_buffers
+
+    settings = pathtracer.RenderSettings(integrator="auto", spp=spp, seed=seed, threads=threads)
+    result = pathtracer.render(scene, ideal, settings, effects=plan.effects - frozenset(SENSOR_EFFECTS),
+                               prepared=renderer)
+    depth, mask = first_hit_buffers(scene, ideal, renderer.accel)
+    return result.mean, depth, mask
+
+
+def finish_view(cam: Camera, split: str, index: int, seed: int, config, rgb: np.ndarray, depth: np.ndarray,
+                mask: np.ndarray) -> CapturedView:
+    """Apply the sensor (``config``: :func:`sensor_config`) to an ideal view: noise from a
+    generator seeded by (seed, index), distortion of rgb, depth and mask."""
+    from .sensor import apply_sensor, distort_map
+
+    rng = np.random.default_rng([seed, index])
+    rgb = apply_sensor(rgb, cam.intrinsics, config, rng)
+    if config.distortion and cam.intrinsics.has_distortion:
+        depth = distort_map(depth, cam.intrinsics, "nearest")
+        mask = distort_map(mask.astype(np.uint8), cam.intrinsics, "nearest").astype(bool)
+    return CapturedView(cam, split, rgb.astype(np.float32), depth.astype(np.float32), mask)
+
+
+def capture_views(rig: RigScene, seed: int = 0, splits: tuple[str, ...] = ("train", "test"),
+                  spp: int = CAPTURE_SPP) -> Iterator[CapturedView]:
+    """Render the cameras of ``splits`` (those the scene has) in order, in this process;
+    deterministic in ``seed``.
+
+    Each view's sensor noise uses its own generator seeded by (seed, view index), so any subset
+    of views reproduces the same bytes, and each view is a pure function of (scene, plan,
+    camera, index, seed): ``render_ideal`` then ``finish_view``, which is how the pipeline runs
+    one view per unit of work on other processes.
+    """
+    plan = plan_capture(rig)
+    views = capture_list(rig, splits)
+    check_capture(rig, plan)
+    config = sensor_config(rig)
+    if plan.renderer == "raster":
+        from .raster import RasterRenderer
+
+        k = views[0][1].intrinsics
+        renderer = RasterRenderer(rig.scene, k.width, k.height)
+        close = renderer.close
     else:
-        frames = _pathtraced_views(rig, views, plan, spp, seed)
-    for index, (split, cam, rgb, depth, mask) in enumerate(frames):
-        rng = np.random.default_rng([seed, index])
-        rgb = apply_sensor(rgb, cam.intrinsics, config, rng)
-        if config.distortion and cam.intrinsics.has_distortion:
-            depth = distort_map(depth, cam.intrinsics, "nearest")
-            mask = distort_map(mask.astype(np.uint8), cam.intrinsics, "nearest").astype(bool)
-        yield CapturedView(cam, split, rgb.astype(np.float32), depth.astype(np.float32), mask)
+        from render import pathtracer
 
-
-def _rasterized_views(rig: RigScene, views):
-    from .raster import RasterRenderer
-
-    k = views[0][1].intrinsics
-    with RasterRenderer(rig.scene, k.width, k.height) as renderer:
-        for split, cam in views:
-            frame = renderer.render(Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name))
-            yield split, cam, frame.rgb, frame.depth, frame.mask
+        renderer, close = pathtracer.prepare(rig.scene), (lambda: None)
+    try:
+        for index, (split, cam) in enumerate(views):
+            rgb, depth, mask = render_ideal(rig.scene, plan, cam, renderer, seed, spp)
+            yield finish_view(cam, split, index, seed, config, rgb, depth, mask)
+    finally:
+        close()

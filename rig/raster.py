@@ -358,6 +358,19 @@ class _Uniforms:
 # The renderer
 # --------------------------------------------------------------------------------------------
 
+def _release_context(platform) -> None:
+    """Make the context current in no thread. pyrender's EGL ``make_uncurrent`` does nothing, which
+    left the context bound to the last thread that drew with it: another thread (a Dask worker's
+    next task thread, or ``close()`` from elsewhere) then failed with EGL_BAD_ACCESS."""
+    display = getattr(platform, "_egl_display", None)
+    if display is not None:
+        from OpenGL import EGL
+
+        EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+    else:
+        platform.make_uncurrent()
+
+
 class RasterRenderer:
     """Renders a render.scene.Scene with pyrender; one GL context, scene uploaded once.
 
@@ -416,7 +429,7 @@ class RasterRenderer:
             self.close()
             raise
         finally:
-            self._platform.make_uncurrent()
+            _release_context(self._platform)
 
     # -- setup -----------------------------------------------------------------------------------
     def _upload(self, spots, dirs, points) -> None:
@@ -532,7 +545,7 @@ class RasterRenderer:
         try:
             self._draw_shadow_maps()
         finally:
-            self._platform.make_uncurrent()
+            _release_context(self._platform)
 
     def _draw_shadow_maps(self) -> None:
         """pyrender's shadow-map pass for each shadowed light, with our light cameras."""
@@ -562,7 +575,7 @@ class RasterRenderer:
             self._draw(V, P, camera.center)
             rgb, geo = self._gl.resolve_and_read()
         finally:
-            self._platform.make_uncurrent()
+            _release_context(self._platform)
         return self._decode(rgb, geo)
 
     def _draw(self, V: np.ndarray, P: np.ndarray, cam_pos: np.ndarray) -> None:

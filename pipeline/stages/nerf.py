@@ -18,6 +18,10 @@ pixel instead and also reports ``psnr_full`` / ``ssim_full`` (costly: 9.8M rays 
 ``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the
 capture's own held-out images (exact for direct-only scenes rendered by the rasterizer).
 
+Training runs in this process (one optimizer, one model: it does not split into independent units);
+the held-out views are then rendered and scored one view per unit of work (pipeline.distributed,
+``cluster``), the trained model shared once.
+
 While training, checkpoints go to a hidden ``.<model>.resume.pt`` beside the stage folder, so an
 interrupted run resumes with ``resume=True`` and a finished folder never looks half-written.
 """
@@ -33,13 +37,14 @@ import numpy as np
 
 from recon.nerf.data import NerfInputError, load_data
 from recon.nerf.models import MODELS
-from recon.nerf.train import TrainConfig, evaluate_views, train
+from recon.nerf.train import TrainConfig, evaluate_view, train
 from render.image_io import atomic_path, write_exr, write_preview
 
 from ..artifacts import BadInput, Manifest, atomic_stage, read_manifest, write_json
+from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import progress_bar
 
-__all__ = ["run_nerf", "write_curve_csv", "CURVE_FIELDS"]
+__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS"]
 
 CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
 
@@ -55,6 +60,17 @@ def write_curve_csv(path: Path, curve: list[dict]) -> None:
         Path(tmp).write_text(buf.getvalue())
 
 
+def nerf_view(model, view, full_res: bool, threads: int) -> tuple[dict, dict]:
+    """One unit of work: a held-out view rendered by the shared trained model and scored
+    (:func:`recon.nerf.train.evaluate_view`) with ``threads`` torch threads (training's own count,
+    so a view's reductions split as they do in the training process)."""
+    import torch
+
+    if torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+    return evaluate_view(model, view, full_res)
+
+
 def _resume_file(out: Path) -> Path:
     return out.parent / f".{out.name}.resume.pt"
 
@@ -62,11 +78,14 @@ def _resume_file(out: Path) -> Path:
 def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: float, out: Path,
              reference_dir: Path | None = None, downsample: int | None = None, seed: int = 0,
              max_steps: int | None = None,
-             resume: bool = False, quiet: bool = False, clock: str = "wall", overrides: dict | None = None) -> dict:
+             resume: bool = False, quiet: bool = False, clock: str = "wall", overrides: dict | None = None,
+             cluster: ClusterConfig | LocalEngine | DaskEngine | None = None) -> dict:
     """Train ``model`` for ``minutes`` of training time on ``capture_dir`` (poses from
     ``poses_dir``/cameras.json when given) and write ``out`` atomically; returns the manifest.
     clock: "wall" budget, or "cpu" (process CPU time / threads, for measuring on shared cores);
     overrides: fields of the model's config to replace (tests use small grids).
+    cluster: where the held-out renders run, one view per unit (pipeline.distributed): None
+    (default) in this process; training always runs here.
 
     Bad input (missing capture, images or cameras, unknown model) raises BadInput.
     """
@@ -120,7 +139,14 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
 
         result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step)
         bar.update(task, completed=100, info=f"rendering {len(data.test)} held-out views")
-        rows, renders = evaluate_views(result.model, data, full_res=model_cfg.render_full_res)
+        done: list = [None] * len(data.test)
+        with engine(cluster, quiet) as eng:
+            model_h = eng.share(result.model)
+            map_units(eng, nerf_view, [(v, bool(model_cfg.render_full_res), cfg.threads) for v in data.test],
+                      shared=[model_h], on_result=done.__setitem__, name="nerf-view")
+            del model_h
+        rows = [row for row, _ in done]
+        renders = {v.name: r for v, (_, r) in zip(data.test, done)}
 
     with atomic_stage(out) as tmp:
         shutil.copyfile(ckpt, tmp / "checkpoint.pt")

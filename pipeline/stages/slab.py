@@ -24,6 +24,13 @@ Reference for the metrics: ``reference_dir/linear/<view>.exr`` when given, else 
 ``reference`` stage folder of the capture (``artifacts/<scene>/reference``) when it is finished,
 else the capture's own held-out ``linear/<view>.exr`` (exact for direct-only scenes, which the
 rasterizer renders exactly).
+
+Units of work (pipeline.distributed; ``cluster``): direct acquisition renders one row of uv
+cameras per unit (:func:`slab_row`: the scene shared once, its renderer built once per process),
+and the held-out views are rendered from the slabs and scored one view per unit
+(:func:`evaluate_view`: the slab set shared once). The client assembles the rows into the
+memory-mapped arrays and writes every file; the bytes are the same in process and on a cluster of
+any size. Rebinning runs in this process.
 """
 from __future__ import annotations
 
@@ -33,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct,
-                        compress_slabs, content_bounds, rebin_slabs, slab_layout)
+from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
+                        compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
 from render.camera_io import read_cameras_json
 from render.color import to_srgb8
@@ -44,9 +51,14 @@ from render.slab import MODES, LightSlab, render_view
 from render.slab_io import load_slabs, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, write_json
+from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import progress_bar
+from ..renderers import prepared_scene, raster_pool
 
-__all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "evaluate_views", "find_reference"]
+__all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "evaluate_views", "evaluate_view", "slab_row",
+           "find_reference"]
+
+Cluster = ClusterConfig | LocalEngine | DaskEngine | None
 
 METHODS = ("direct", "rebin")
 
@@ -153,52 +165,40 @@ def _content_points(views: list[CapturedView], min_radiance: float, stride: int 
 # ------------------------------------------------------------------------------------- building
 
 
-def _direct_renderer(scene_file: Path, config: SlabStageConfig):
-    """A render(camera) -> (rgb, depth) callback over the rig's renderer for the scene, plus a
-    closer. One rasterizer context per image size."""
-    from rig.build import load_scene
-    from rig.capture import plan_capture
-
-    rig = load_scene(scene_file)
-    plan = plan_capture(rig)
-    if plan.renderer == "raster":
-        from rig.raster import RasterRenderer
-
-        renderers: dict[tuple[int, int], RasterRenderer] = {}
+def _row_renderer(scene, scene_key: str, renderer: str, settings, gl_threads: int | None):
+    """A render(camera) -> (rgb, depth) callback over this process's renderer of the shared scene:
+    the rasterizer (one context per image size) or the path tracer (its BVH built once)."""
+    if renderer == "raster":
+        pool = raster_pool(scene, scene_key, gl_threads)
 
         def render(cam: Camera):
-            size = (cam.intrinsics.width, cam.intrinsics.height)
-            if size not in renderers:
-                for r in renderers.values():
-                    r.close()
-                renderers.clear()
-                renderers[size] = RasterRenderer(rig.scene, *size)
-            f = renderers[size].render(cam)
+            f = pool.render(cam)
             return f.rgb, f.depth
-
-        def close():
-            for r in renderers.values():
-                r.close()
     else:
         from render import pathtracer
         from render.gbuffer import first_hit_buffers
 
-        settings = pathtracer.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed)
+        prepared = prepared_scene(scene, scene_key, settings.threads)
 
         def render(cam: Camera):
-            res = pathtracer.render(rig.scene, cam, settings)
-            depth, _ = first_hit_buffers(rig.scene, cam)
+            res = pathtracer.render(scene, cam, settings, prepared=prepared)
+            depth, _ = first_hit_buffers(scene, cam, prepared.accel)
             return res.mean, depth
+    return render
 
-        def close():
-            pass
-    return rig, plan.renderer, render, close
+
+def slab_row(scene, scene_key: str, renderer: str, settings, gl_threads: int | None, geom, j: int,
+             direct: DirectConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One unit of work: uv row ``j`` of slab ``geom`` (:func:`recon.slab.acquire_row`), rendered
+    by this process's ``renderer`` ("raster" or "pathtracer") of the shared scene ``scene_key``."""
+    return acquire_row(geom, j, _row_renderer(scene, scene_key, renderer, settings, gl_threads), direct)
 
 
 def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_dir: Path | None = None,
-                quiet: bool = True) -> tuple[list[LightSlab], dict]:
+                quiet: bool = True, cluster: Cluster = None) -> tuple[list[LightSlab], dict]:
     """Fit the layout to the capture and acquire the slabs into ``folder``; returns the slabs and
-    build figures (bounds, renderer, build time, coverage for ``rebin``)."""
+    build figures (bounds, renderer, build time, coverage for ``rebin``). cluster: where the rows
+    of a direct acquisition run (module docstring); None in this process."""
     capture_dir = Path(capture_dir)
     cams, splits = _cameras(poses_dir if poses_dir is not None else capture_dir)
     train = [c for c, s in zip(cams, splits) if s == "train"]
@@ -216,18 +216,35 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
     if config.method == "direct":
         if scene_file is None:
             raise BadInput(f"{capture_dir / MANIFEST}: names no readable scene file (direct acquisition renders the scene)")
-        rig, renderer, render, close = _direct_renderer(scene_file, config)
+        from render import pathtracer
+        from rig.build import load_scene
+        from rig.capture import plan_capture
+
+        rig = load_scene(scene_file)
+        renderer = plan_capture(rig).renderer
         up = np.asarray(rig.scene.up, dtype=np.float64)
         geoms = _layout(config, bounds, train, up)
-        K, F = config.direct.uv_supersample, config.direct.st_supersample
-        per_uv = K * K + (1 if K % 2 == 0 else 0)
+        per_uv = renders_per_uv(config.direct)
         total = sum(g.shape[0] * g.shape[1] for g in geoms) * per_uv
-        try:
-            with progress_bar(quiet) as bar:
-                task = bar.add_task("slab: direct", total=total, info=renderer)
-                slabs = acquire_direct(geoms, render, folder, config.direct, lambda n: bar.advance(task, n))
-        finally:
-            close()
+        with engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
+            task = bar.add_task("slab: direct", total=total, info=renderer)
+            scene = eng.share(rig.scene)
+            settings = pathtracer.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed,
+                                                 threads=eng.render_threads)
+            gl_threads = eng.render_threads if isinstance(eng, DaskEngine) else None
+
+            def rows(units, put) -> None:
+                def got(k: int, row: tuple[np.ndarray, np.ndarray]) -> None:
+                    put(k, *row)
+                    bar.advance(task, units[k][0].shape[0] * per_uv)
+
+                map_units(eng, slab_row, [(scene.key, renderer, settings, gl_threads, g, j, config.direct)
+                                          for g, j in units], shared=[scene], on_result=got, name="slab-row")
+
+            try:
+                slabs = acquire_direct(geoms, None, folder, config.direct, rows=rows)
+            finally:
+                eng.release(scene)
         info.update(renderer=renderer, renders=total)
     else:
         if scene_file is not None:
@@ -267,34 +284,58 @@ def _background(views: list[CapturedView]) -> np.ndarray:
 # ------------------------------------------------------------------------------------- evaluation
 
 
+def evaluate_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MODES, background=(0.0, 0.0, 0.0),
+                  ssim_modes=None) -> dict:
+    """One unit of work: ``cam``'s view rendered from ``slabs`` in every mode and scored against
+    ``ref``: {mode: (metrics {"psnr"[, "ssim"]}, image, render seconds)}."""
+    out = {}
+    for mode in modes:
+        t0 = time.perf_counter()
+        img = render_view(slabs, cam, mode, background)
+        t = time.perf_counter() - t0
+        with_ssim = ssim_modes is None or mode in ssim_modes
+        out[mode] = ({"psnr": psnr(img, ref), **({"ssim": ssim(img, ref)} if with_ssim else {})}, img, t)
+    return out
+
+
 def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: list[np.ndarray],
-                   modes=MODES, background=(0.0, 0.0, 0.0), ssim_modes=None) -> tuple[dict, dict]:
+                   modes=MODES, background=(0.0, 0.0, 0.0), ssim_modes=None, cluster: Cluster = None,
+                   on_view=None) -> tuple[dict, dict]:
     """Render every camera in every mode; returns ``(metrics per mode, images per mode)`` with
     metrics {mode: {"per_view": {view: {"psnr", "ssim"}}, "psnr_mean", "ssim_mean", "render_s_per_view"}}.
 
     SSIM is computed for ``ssim_modes`` only (None: every mode; elsewhere "ssim" is absent and
     "ssim_mean" None): at 1280x960 one SSIM (render.metrics, float64) costs ~3 CPU seconds, a
-    render from the slabs ~0.3."""
+    render from the slabs ~0.3. One view per unit of work (:func:`evaluate_view`) on ``cluster``
+    (None: in this process), the slab set shared once; ``on_view()`` as each view is done."""
+    modes = tuple(modes)
+    done: list = [None] * len(cameras)
+
+    def got(k: int, result: dict) -> None:
+        done[k] = result
+        if on_view is not None:
+            on_view()
+
+    with engine(cluster, quiet=True) as eng:
+        shared = eng.share(slabs)
+        units = [(cam, ref, modes, background, ssim_modes) for cam, ref in zip(cameras, references)]
+        map_units(eng, evaluate_view, units, shared=[shared], on_result=got, name="slab-view")
+        del shared
     metrics, images = {}, {}
     for mode in modes:
         with_ssim = ssim_modes is None or mode in ssim_modes
-        per_view, imgs, t = {}, {}, 0.0
-        for cam, ref in zip(cameras, references):
-            t0 = time.perf_counter()
-            img = render_view(slabs, cam, mode, background)
-            t += time.perf_counter() - t0
-            per_view[cam.name] = {"psnr": psnr(img, ref), **({"ssim": ssim(img, ref)} if with_ssim else {})}
-            imgs[cam.name] = img
+        per_view = {cam.name: r[mode][0] for cam, r in zip(cameras, done)}
+        t = sum(r[mode][2] for r in done)
         metrics[mode] = {"per_view": per_view,
                          "psnr_mean": float(np.mean([m["psnr"] for m in per_view.values()])),
                          "ssim_mean": float(np.mean([m["ssim"] for m in per_view.values()])) if with_ssim else None,
                          "render_s_per_view": t / max(len(cameras), 1)}
-        images[mode] = imgs
+        images[mode] = {cam.name: r[mode][1] for cam, r in zip(cameras, done)}
     return metrics, images
 
 
 def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray], bg: np.ndarray, by_mode: dict,
-              config: SlabStageConfig, tmp: Path, quiet: bool) -> dict:
+              config: SlabStageConfig, tmp: Path, quiet: bool, cluster: Cluster = None) -> dict:
     """Vector-quantize the slabs into ``tmp/compressed``, render the held-out views from them (the
     primary mode and quadrilinear, through the codebook) and return sizes, ratios and PSNR cost."""
     t0 = time.perf_counter()
@@ -305,7 +346,7 @@ def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray]
     compress_s = time.perf_counter() - t0
     vq = load_slabs(tmp / "compressed")
     modes = tuple(dict.fromkeys((config.mode, "quadrilinear")))
-    m_vq, images = evaluate_views(vq, test, refs, modes, bg, ssim_modes=(config.mode,))
+    m_vq, images = evaluate_views(vq, test, refs, modes, bg, ssim_modes=(config.mode,), cluster=cluster)
     for cam in test:
         write_preview(tmp / "renders_vq" / f"{cam.name}.png", images[config.mode][cam.name])
     files = slab_file_bytes(tmp / "compressed")
@@ -320,9 +361,13 @@ def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray]
 
 
 def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabStageConfig = SlabStageConfig(),
-             reference_dir: Path | None = None, quiet: bool = False) -> dict:
+             reference_dir: Path | None = None, quiet: bool = False, cluster: Cluster = None) -> dict:
     """Build slabs from ``capture_dir`` into ``out`` (atomically), render the held-out views in
-    every interpolation mode and score them; returns the manifest."""
+    every interpolation mode and score them; returns the manifest.
+
+    cluster: where the units of work run (module docstring): None (default) in this process; a
+    :class:`ClusterConfig` for a local or existing Dask cluster, or an engine already open. The
+    output files are the same bytes either way (metrics.json's timings aside)."""
     capture_dir = Path(capture_dir)
     if not capture_dir.is_dir():
         raise BadInput(f"{capture_dir}: no such capture folder")
@@ -342,18 +387,14 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
         manifest.add_input(Path(poses_dir) / "cameras.json")
     for c in test:
         manifest.add_input(ref_dir / "linear" / f"{c.name}.exr")
-    with atomic_stage(out) as tmp:
-        slabs, info = build_slabs(capture_dir, tmp / "slabs", config, poses_dir, quiet)
+    with atomic_stage(out) as tmp, engine(cluster, quiet) as eng:
+        slabs, info = build_slabs(capture_dir, tmp / "slabs", config, poses_dir, quiet, eng)
         slabs = load_slabs(tmp / "slabs")  # memory-mapped read-only, as a reader will see them
         bg = np.asarray(info.get("background", (0.0, 0.0, 0.0)), np.float32)
         with progress_bar(quiet) as bar:
-            task = bar.add_task("slab: render held-out views", total=len(MODES), info="")
-            by_mode, images = {}, {}
-            for mode in MODES:
-                m, im = evaluate_views(slabs, test, refs, (mode,), bg, ssim_modes=(config.mode,))
-                by_mode.update(m)
-                images.update(im)
-                bar.advance(task)
+            task = bar.add_task("slab: render held-out views", total=len(test), info=f"{len(MODES)} modes")
+            by_mode, images = evaluate_views(slabs, test, refs, MODES, bg, ssim_modes=(config.mode,), cluster=eng,
+                                             on_view=lambda: bar.advance(task))
         for cam, ref in zip(test, refs):
             img = images[config.mode][cam.name]
             write_exr(tmp / "renders" / f"{cam.name}.exr", img)
@@ -364,7 +405,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
             for mode in MODES:
                 write_preview(tmp / "modes" / mode / f"{cam.name}.png", images[mode][cam.name])
         primary = by_mode[config.mode]
-        compression = _compress(slabs, test, refs, bg, by_mode, config, tmp, quiet) if config.compress else None
+        compression = _compress(slabs, test, refs, bg, by_mode, config, tmp, quiet, eng) if config.compress else None
         metrics = {"mode": config.mode, "method": config.method, "reference": ref_kind,
                    "per_view": primary["per_view"], "psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
                    "modes": by_mode, "build": info, **({"compression": compression} if compression else {})}
@@ -374,7 +415,8 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
                             **({"coverage": info["coverage"]} if "coverage" in info else {}),
                             **{f"psnr_{m}": by_mode[m]["psnr_mean"] for m in MODES},
                             **({"vq_ratio_vs_float32": compression["ratio_vs_float32"],
-                                "vq_psnr_cost": compression["psnr_cost"][config.mode]} if compression else {})}
+                                "vq_psnr_cost": compression["psnr_cost"][config.mode]} if compression else {}),
+                            "engine": eng.name, "workers": eng.workers}
         result = manifest.write(tmp)
     return result
 

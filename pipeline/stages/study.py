@@ -31,6 +31,9 @@ the scene's own integrator and a seed different from every swept render (indepen
 every accuracy is :func:`pipeline.stages.validate.compare_view` against it, so the reference's
 noise ceiling is reported too. All stages run in a scratch folder inside the study folder that is
 deleted before the manifest is written; only the figures are kept.
+
+Points run one after another in this process, each stage in process (no Dask engine): timings
+of points run concurrently on shared cores would not be comparable (docs/scaling.md, "Stages").
 """
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ from render.metrics import psnr, ssim
 from .data import NerfData, camera_rays, stack_rays
 from .models import MODELS, make_model
 
-__all__ = ["TrainConfig", "TrainResult", "train", "render_view", "evaluate_views", "mse_to_psnr"]
+__all__ = ["TrainConfig", "TrainResult", "train", "render_view", "evaluate_view", "evaluate_views", "mse_to_psnr"]
 
 
 @dataclass(frozen=True)
@@ -233,6 +233,21 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     return TrainResult(model, step, train_s, curve)
 
 
+def evaluate_view(model: nn.Module, v, full_res: bool) -> tuple[dict, dict]:
+    """Render one held-out view (:class:`recon.nerf.data.View`) and compare it with its reference:
+    (row, render) as one element of :func:`evaluate_views`. A pure function of (model, view), so
+    views may be rendered in any process (the pipeline runs one view per unit of work)."""
+    small = render_view(model, v.camera)
+    row = {"view": v.name, "psnr": psnr(small["rgb"], v.rgb), "ssim": ssim(small["rgb"], v.rgb)}
+    if full_res:
+        big = render_view(model, v.full_camera)
+        row.update(psnr_full=psnr(big["rgb"], v.full_rgb), ssim_full=ssim(big["rgb"], v.full_rgb))
+    else:
+        f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
+        big = {k: np.repeat(np.repeat(a, f, axis=0), f, axis=1) for k, a in small.items()}
+    return row, {"rgb": big["rgb"], "depth": big["depth"]}
+
+
 def evaluate_views(model: nn.Module, data: NerfData, full_res: bool) -> tuple[list[dict], dict[str, dict]]:
     """Render every held-out view and compare it with its reference.
 
@@ -243,14 +258,6 @@ def evaluate_views(model: nn.Module, data: NerfData, full_res: bool) -> tuple[li
     """
     rows, renders = [], {}
     for v in data.test:
-        small = render_view(model, v.camera)
-        row = {"view": v.name, "psnr": psnr(small["rgb"], v.rgb), "ssim": ssim(small["rgb"], v.rgb)}
-        if full_res:
-            big = render_view(model, v.full_camera)
-            row.update(psnr_full=psnr(big["rgb"], v.full_rgb), ssim_full=ssim(big["rgb"], v.full_rgb))
-        else:
-            f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
-            big = {k: np.repeat(np.repeat(a, f, axis=0), f, axis=1) for k, a in small.items()}
+        row, renders[v.name] = evaluate_view(model, v, full_res)
         rows.append(row)
-        renders[v.name] = {"rgb": big["rgb"], "depth": big["depth"]}
     return rows, renders
