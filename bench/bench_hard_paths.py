@@ -12,7 +12,10 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   equal-time entry interpolates every integrator's RMSE (log-log) at the longest time all of
   them reached. sppm takes one eye sample per pixel per pass, so its image RMSE here is
   dominated by the edge pixels of the directly visible light (32 passes = 32 samples there
-  against path's thousands), not by the caustic. bdpt / pssmlt are not implemented yet (issue 8).
+  against path's thousands), not by the caustic. ``bdpt`` and ``pssmlt`` likewise, each at spp
+  chosen to span path's times; ``caustic_vs_path_at_equal_time`` divides each run's RMSE by
+  path's at the same wall time. The fog scene has only ``volpath``: bdpt, pssmlt and sppm do not
+  render media (docs/architecture.md). Plot: hard_paths_rmse_time.svg (log10 RMSE vs time).
 * pruning: median render time of the no-media scene with ``path`` (what auto picks), with
   ``volpath`` (what a scene with media would need), and with ``volpath`` given an empty medium
   (media code running for nothing): ratios show what each pruning saves.
@@ -71,18 +74,47 @@ def _rmse(a, b):
     return float(np.sqrt(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
 
 
+#: spp (sppm: passes) per integrator, chosen so every integrator's wall times overlap path's
+SPP_LISTS = {
+    "path": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled: ~100x faster per sample
+    "volpath": ([4, 16], [4, 16, 64, 256]),
+    "bdpt": ([2, 8], [2, 8, 32, 128]),
+    "pssmlt": ([4, 16], [4, 16, 64, 256]),
+    "sppm": ([2, 8], [2, 8, 32, 128]),
+}
+CAUSTIC_INTEGRATORS = ["path", "volpath", "bdpt", "pssmlt", "sppm"]
+
+
+def _interp_loglog(points, t: float) -> float:
+    """RMSE at time t from (time, rmse) points, interpolated in log-log (t within their range)."""
+    ts, es = zip(*sorted(points))
+    return float(np.exp(np.interp(np.log(t), np.log(ts), np.log(es))))
+
+
+def _plot(rows: list[dict], path) -> None:
+    """log10 RMSE against wall time (log), one line per (scene, integrator), as SVG."""
+    from pipeline.report import Series, svg_plot
+
+    series = []
+    for scene in dict.fromkeys(r["scene"] for r in rows):
+        for integ in dict.fromkeys(r["integrator"] for r in rows if r["scene"] == scene):
+            pts = sorted((r["time_s"], r["rmse"], r["spp"]) for r in rows
+                         if r["scene"] == scene and r["integrator"] == integ)
+            series.append(Series(f"{scene}: {integ}", [p[0] for p in pts], [float(np.log10(p[1])) for p in pts],
+                                 labels=[f"{integ} {p[2]}" for p in pts], line=True, dashed=scene != "caustic"))
+    svg = svg_plot(series, "wall time (s)", "log10 RMSE vs long reference",
+                   "Hard light paths: RMSE against time (caustic: solid, fog: dashed)", logx=True)
+    path.write_text(svg)
+
+
 def main(quick: bool = False) -> None:
     size = 24 if quick else 48
     ref_spp = 256 if quick else 4096
-    spps = [4, 16] if quick else [4, 16, 64, 256]
-    # path is ~100x faster per sample than the numpy integrators: longer runs span their times
-    path_spps = [4, 16, 64] if quick else [4, 16, 64, 256, 1024, 4096]
-    sppm_passes = [2, 8] if quick else [2, 8, 32, 128]
     caustic_ref_spp = 1024 if quick else 65536
     cam = camera(size)
     rows, figs = [], {}
     t0 = time.perf_counter()
-    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", ["path", "volpath", "sppm"]),
+    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", CAUSTIC_INTEGRATORS),
                                               ("fog", caustic_scene(0.4), "volpath", ["volpath"])):
         ps = prepare(sc)
         ts = time.perf_counter()
@@ -91,7 +123,7 @@ def main(quick: bool = False) -> None:
         figs[f"{scene_name}_reference"] = {"integrator": ref_integ, "spp": rspp,
                                            "time_s": round(time.perf_counter() - ts, 2)}
         for integ in integs:
-            for spp in {"sppm": sppm_passes, "path": path_spps}.get(integ, spps):
+            for spp in SPP_LISTS[integ][0 if quick else 1]:
                 ts = time.perf_counter()
                 r = render(sc, cam, RenderSettings(integrator=integ, spp=spp, max_depth=8, seed=spp,
                                                    photons_per_pass=SPPM_PHOTONS), prepared=ps)
@@ -100,20 +132,23 @@ def main(quick: bool = False) -> None:
                              "rmse": _rmse(r.mean, ref.mean)})
     # equal-time comparison on the caustic scene: RMSE interpolated in log-log at a common time
     cau = {i: [(r["time_s"], r["rmse"]) for r in rows if r["scene"] == "caustic" and r["integrator"] == i]
-           for i in ("path", "volpath", "sppm")}
+           for i in CAUSTIC_INTEGRATORS}
     t_common = min(max(t for t, _ in v) for v in cau.values())
-    at = {i: float(np.exp(np.interp(np.log(t_common), np.log([t for t, _ in v]), np.log([e for _, e in v]))))
-          for i, v in cau.items()}
-    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "rmse_ratio_volpath_over_path": at["volpath"] / at["path"],
-                                  "rmse_ratio_sppm_over_path": at["sppm"] / at["path"],
+    at = {i: _interp_loglog(v, t_common) if min(t for t, _ in v) <= t_common else None for i, v in cau.items()}
+    best = min((i for i in at if at[i] is not None), key=lambda i: at[i])
+    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "best": best,
+                                  "rmse_ratio_best_over_path": at[best] / at["path"],
+                                  **{f"rmse_ratio_{i}_over_path": (at[i] / at["path"] if at[i] else None)
+                                     for i in CAUSTIC_INTEGRATORS if i != "path"},
                                   "sppm_photons_per_pass": SPPM_PHOTONS}
-    # sppm against path at each sppm run's own wall time (path interpolated, within its range)
-    pt, pe = np.log([t for t, _ in cau["path"]]), np.log([e for _, e in cau["path"]])
-    figs["caustic_sppm_vs_path"] = [
-        {"passes": r["spp"], "time_s": r["time_s"], "rmse_sppm": r["rmse"],
-         "rmse_path": float(np.exp(np.interp(np.log(r["time_s"]), pt, pe))),
-         "rmse_ratio_sppm_over_path": r["rmse"] / float(np.exp(np.interp(np.log(r["time_s"]), pt, pe)))}
-        for r in rows if r["scene"] == "caustic" and r["integrator"] == "sppm" and pt.min() <= np.log(r["time_s"]) <= pt.max()]
+    # every integrator against path at its own runs' wall times (path interpolated, within its range)
+    t_path = [t for t, _ in cau["path"]]
+    figs["caustic_vs_path_at_equal_time"] = [
+        {"integrator": r["integrator"], "spp": r["spp"], "time_s": r["time_s"], "rmse": r["rmse"],
+         "rmse_path": _interp_loglog(cau["path"], r["time_s"]),
+         "rmse_ratio_over_path": r["rmse"] / _interp_loglog(cau["path"], r["time_s"])}
+        for r in rows if r["scene"] == "caustic" and r["integrator"] != "path"
+        and min(t_path) <= r["time_s"] <= max(t_path)]
     # pruning: no media -> path; volpath with no media; volpath with an empty (sigma 0) medium
     sc = caustic_scene()
     ps = prepare(sc)
@@ -136,6 +171,7 @@ def main(quick: bool = False) -> None:
         w = csv.DictWriter(fh, fieldnames=["scene", "integrator", "spp", "time_s", "rmse"])
         w.writeheader()
         w.writerows(rows)
+    _plot(rows, RESULTS_DIR / "hard_paths_rmse_time.svg")
     write_result("hard_paths", figs)
 
 

@@ -13,6 +13,10 @@ to solid angle at the shading point: p_omega = p_area * r^2 / |cos theta_light| 
 of the radiosity form factor). Emission is one-sided (towards the triangle's normal) unless
 the material is two-sided. Units follow :mod:`render.scene`: a point light gives irradiance
 I cos / r^2, a directional light E cos.
+
+:func:`sample_emission` samples rays *leaving* the lights (photons of render.sppm, the first
+vertex and direction of render.bdpt's light subpaths), with the densities bidirectional
+methods weigh them by.
 """
 from __future__ import annotations
 
@@ -21,13 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from .accel import Geometry
+from .accel import spawn_origin
 from .bsdf import MaterialTable
-from .sampling import dot3
+from .sampling import cosine_hemisphere, dot3, orthonormal_frame, to_world, uniform_sphere, uniform_triangle
 from .scene import DirectionalLight, PointLight, Scene, SpotLight, spot_falloff
 
-__all__ = ["LightSample", "LightSet", "POINT", "SPOT", "DIRECTIONAL"]
+__all__ = ["LightSample", "LightSet", "EmissionSample", "sample_emission", "scene_bounds",
+           "POINT", "SPOT", "DIRECTIONAL", "AREA"]
 
 POINT, SPOT, DIRECTIONAL = 0, 1, 2
+#: EmissionSample.kind of an area source (delta lights use POINT, SPOT, DIRECTIONAL)
+AREA = 3
 _COS_FLOOR = 1e-12
 
 
@@ -189,3 +197,128 @@ class LightSet:
             Li[m] = self.d_I[li] * (fall / r2)[:, None]
             valid[m] = fall > 0
         return LightSample(wi, dist, Li, pdf, delta, valid)
+
+
+# ---------------------------------------------------------------- emission (rays leaving the lights)
+@dataclass
+class EmissionSample:
+    """n rays leaving the scene's lights (sppm's photons, bdpt's light subpaths).
+
+    o: (n, 3) ray origins (area sources: offset off the triangle by render.accel.spawn_origin).
+    p: (n, 3) the sampled point (area: on the triangle; point, spot: the light's position;
+    directional: on a disk of the scene's bounding radius R, upstream of the scene).
+    d: (n, 3) unit directions. normal: (n, 3) an area source's normal on the emitting side
+    (zeros for the other lights). kind: (n,) int64 AREA, POINT, SPOT or DIRECTIONAL.
+    entry: (n,) int64 LightSet entry (-1: no light). pmf: (n,) its selection probability.
+    pdf_pos: (n,) density of p without the pmf: 1 / triangle area (area), 1 (point, spot: a delta
+    position), 1 / (pi R^2) per unit area of the disk (directional).
+    pdf_dir: (n,) solid-angle density of d: |cos| / pi (halved for two-sided sources, whose side
+    is chosen with probability 1/2), 1 / (4 pi) (point), uniform in the outer cone (spot),
+    1 (directional: a delta direction).
+    flux: (n, 3) Le |cos| / (pmf pdf_pos pdf_dir) and the delta lights' equivalents (I falloff /
+    (pmf pdf_dir), E / (pmf pdf_pos)): the throughput the ray carries; zero where nothing is
+    emitted (e.g. a spot direction outside its falloff).
+    """
+
+    o: np.ndarray
+    p: np.ndarray
+    d: np.ndarray
+    normal: np.ndarray
+    kind: np.ndarray
+    entry: np.ndarray
+    pmf: np.ndarray
+    pdf_pos: np.ndarray
+    pdf_dir: np.ndarray
+    flux: np.ndarray
+
+
+def scene_bounds(geom: Geometry) -> tuple[np.ndarray, float]:
+    """(centre (3,), bounding radius) of the valid triangles: the disk directional lights emit from."""
+    v = geom.valid
+    if not v.any():
+        return np.zeros(3), 0.5 * geom.extent
+    pts = np.concatenate([geom.v0[v], geom.v0[v] + geom.e1[v], geom.v0[v] + geom.e2[v]])
+    lo, hi = pts.min(0), pts.max(0)
+    return 0.5 * (lo + hi), 0.5 * geom.extent
+
+
+def sample_emission(lights: LightSet, geom: Geometry, u_sel: np.ndarray, u_pos: np.ndarray, u_dir: np.ndarray,
+                    u_side: np.ndarray) -> EmissionSample:
+    """Sample n rays leaving the lights from uniforms u_sel (n,), u_pos (n, 2), u_dir (n, 2), u_side (n,).
+
+    The light is chosen by the LightSet's power pmf (as :meth:`LightSet.sample`). Area sources: a
+    uniform point on the chosen triangle, a cosine-weighted direction on the emitting side (a
+    random side, u_side < 1/2 the back, if two-sided). Point: uniform sphere. Spot: uniform in
+    the outer cone, flux scaled by the smoothstep falloff. Directional: a uniform point on a disk
+    of the scene's bounding radius perpendicular to the light, 2 R upstream of the scene's centre.
+    """
+    n = len(u_sel)
+    extent = geom.extent
+    o, p, d, nrm, flux = (np.zeros((n, 3)) for _ in range(5))
+    d[:, 2] = 1.0
+    kind = np.full(n, AREA, np.int64)
+    entry = np.full(n, -1, np.int64)
+    pmf, pdf_pos, pdf_dir = np.zeros(n), np.ones(n), np.ones(n)
+    if lights.empty or n == 0:
+        return EmissionSample(o, p, d, nrm, kind, entry, pmf, pdf_pos, pdf_dir, flux)
+    ent = np.minimum(np.searchsorted(lights.cdf, u_sel * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
+    entry[:] = ent
+    pmf[:] = lights.pmf[ent]
+    a = np.nonzero(ent < lights.n_area)[0]
+    if len(a):
+        j = ent[a]
+        b = uniform_triangle(u_pos[a])
+        pa = lights.a_v0[j] + b[:, 0:1] * lights.a_e1[j] + b[:, 1:2] * lights.a_e2[j]
+        nl = lights.a_normal[j]
+        two = lights.two_sided[j]
+        flip = two & (u_side[a] < 0.5)
+        nl = np.where(flip[:, None], -nl, nl)
+        t1, t2 = orthonormal_frame(nl)
+        loc = cosine_hemisphere(u_dir[a])
+        w = to_world(loc, t1, t2, nl)
+        area = geom.area[lights.tri[j]]
+        # Le cos / (pmf / A  x  cos / pi  [x 1/2 side])
+        scale = np.pi * area * np.where(two, 2.0, 1.0) / np.maximum(pmf[a], 1e-300)
+        o[a] = spawn_origin(pa, nl, w, extent)
+        p[a], d[a], nrm[a] = pa, w, nl
+        flux[a] = lights.Le[j] * scale[:, None]
+        pdf_pos[a] = 1.0 / np.maximum(area, 1e-300)
+        pdf_dir[a] = loc[:, 2] / np.pi * np.where(two, 0.5, 1.0)
+    if len(lights.d_kind):
+        centre, radius = scene_bounds(geom)
+        for li in range(len(lights.d_kind)):  # few lights; vectorized over rays
+            m = np.nonzero(ent == lights.n_area + li)[0]
+            if len(m) == 0:
+                continue
+            lk, I, pm = lights.d_kind[li], lights.d_I[li], max(lights.pmf[lights.n_area + li], 1e-300)
+            kind[m] = lk
+            if lk == POINT:
+                o[m], d[m] = lights.d_pos[li], uniform_sphere(u_dir[m])
+                p[m] = lights.d_pos[li]
+                flux[m] = I * (4.0 * np.pi / pm)
+                pdf_dir[m] = 0.25 / np.pi
+            elif lk == SPOT:
+                ci, co = lights.d_cos[li]
+                cz = 1.0 - u_dir[m, 0] * (1.0 - co)  # uniform in the outer cone
+                sz = np.sqrt(np.maximum(0.0, 1.0 - cz * cz))
+                phi = 2.0 * np.pi * u_dir[m, 1]
+                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
+                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
+                loc = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
+                o[m], d[m] = lights.d_pos[li], to_world(loc, t1, t2, axis)
+                p[m] = lights.d_pos[li]
+                fall = spot_falloff(cz, ci, co)
+                flux[m] = I[None] * (fall * 2.0 * np.pi * (1.0 - co) / pm)[:, None]
+                pdf_dir[m] = 1.0 / (2.0 * np.pi * max(1.0 - co, 1e-300))
+            else:  # directional: a disk of the scene's bounding radius, upstream of the scene
+                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
+                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
+                r = radius * np.sqrt(u_pos[m, 0])
+                phi = 2.0 * np.pi * u_pos[m, 1]
+                o[m] = (centre - 2.0 * radius * lights.d_dir[li]) + (r * np.cos(phi))[:, None] * t1 \
+                    + (r * np.sin(phi))[:, None] * t2
+                p[m] = o[m]
+                d[m] = axis
+                flux[m] = I * (np.pi * radius * radius / pm)
+                pdf_pos[m] = 1.0 / (np.pi * radius * radius)
+    return EmissionSample(o, p, d, nrm, kind, entry, pmf, pdf_pos, pdf_dir, flux)

@@ -93,7 +93,14 @@ INTEGRATOR_EFFECTS = {
     "path": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
     "volpath": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"}),
     "sppm": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
+    "bdpt": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
+    "pssmlt": frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics"}),
 }
+#: integrators implemented in their own modules, each exposing render_result(scene, camera, settings,
+#: sample_range, effects, prepared) -> RenderResult
+_MODULE_INTEGRATORS = frozenset({"sppm", "bdpt", "pssmlt"})
+#: integrators that trace light subpaths, and so reach caustics from point/spot/directional lights
+_LIGHT_TRACING = frozenset({"sppm", "bdpt"})
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
 #: random dimensions per bounce (render.pt_kernels.shade_bounce): light pick, light uv (2), lobe, bsdf uv (2),
 #: roulette, spare; camera jitter takes dimensions 0 and 1
@@ -104,8 +111,9 @@ _DIMS_PER_BOUNCE = 8
 class RenderSettings:
     """How to render.
 
-    integrator: "auto" (chosen from the scene's effects), "direct", "path", "volpath" or "sppm"
-    (never chosen by auto). spp: samples per pixel when no sample range is given (sppm: passes).
+    integrator: "auto" (chosen from the scene's effects), "direct", "path", "volpath", "bdpt"
+    (render.bdpt), "pssmlt" (render.pssmlt) or "sppm" (render.sppm). spp: samples per pixel when
+    no sample range is given (sppm: passes; pssmlt: mutations per pixel on average).
     max_depth: maximum bounces. photons_per_pass: photons emitted per sppm pass (sppm only).
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth.
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
@@ -128,8 +136,9 @@ class RenderSettings:
     photons_per_pass: int = 200_000
 
     def __post_init__(self):
-        if self.integrator not in ("auto", "direct", "path", "volpath", "sppm"):
-            raise ValueError(f"integrator must be auto, direct, path, volpath or sppm, got {self.integrator!r}")
+        if self.integrator not in ("auto", *INTEGRATOR_EFFECTS):
+            raise ValueError(f"integrator must be auto or one of {', '.join(INTEGRATOR_EFFECTS)}, "
+                             f"got {self.integrator!r}")
         if self.strategy not in ("mis", "light", "bsdf"):
             raise ValueError(f"strategy must be mis, light or bsdf, got {self.strategy!r}")
         if self.heuristic not in ("power", "balance"):
@@ -146,18 +155,21 @@ def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool =
 
     ``auto``: "volpath" when media are needed or the scene has GGX materials (``glossy``: the
     compiled kernels do not shade them), else "direct" unless interreflection or caustics are
-    needed, then "path". A requested integrator that cannot reach an effect (or shade a glossy
-    material) raises ValueError naming it, as do caustics with point/spot/directional lights
-    (unreachable by the path tracers; only 'sppm', which traces photons from the lights,
-    reaches them, and auto never picks it).
+    needed, then "path", or "bdpt" when the caustics come from point/spot/directional lights
+    (a delta light seen through a delta BSDF: only light tracing reaches it, and bdpt is the
+    unbiased integrator that does; sppm is consistent only and never chosen by auto). A
+    requested integrator that cannot reach an effect (or shade a glossy material) raises
+    ValueError naming it, as do delta-light caustics asked of an eye-path-only integrator.
     """
     eff = frozenset(effects) & _TRANSPORT
-    if glossy and requested in ("direct", "path", "sppm"):
+    if requested == "auto" and "caustics" in eff and has_delta_lights and not (glossy or "media" in eff):
+        return "bdpt"
+    if glossy and requested not in ("auto", "volpath"):
         raise ValueError(f"integrator '{requested}' cannot shade glossy (GGX) materials; use 'volpath' or 'auto'")
-    if "caustics" in eff and has_delta_lights and requested != "sppm":
+    if "caustics" in eff and has_delta_lights and requested not in _LIGHT_TRACING:
         raise ValueError("effect 'caustics' with point/spot/directional lights is unreachable by a path "
                          "tracer (a delta light seen through a delta BSDF); use area lights, integrator "
-                         "'sppm', or drop 'caustics' from the scene's effects")
+                         "'bdpt' or 'sppm', or drop 'caustics' from the scene's effects")
     if requested == "auto":
         if "media" in eff or glossy:
             return "volpath"
@@ -323,9 +335,10 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     if integ == "volpath":
         from .volpath import render_volpath
         return render_volpath(scene, camera, settings, sample_range, eff, ps)
-    if integ == "sppm":
-        from .sppm import render_result
-        return render_result(scene, camera, settings, sample_range, eff, ps)
+    if integ in _MODULE_INTEGRATORS:
+        import importlib
+        module = importlib.import_module(f".{integ}", __package__)
+        return module.render_result(scene, camera, settings, sample_range, eff, ps)
     caustics = "caustics" in eff
     a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
     if not 0 <= a < b:

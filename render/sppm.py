@@ -10,11 +10,12 @@ them from the light instead. Each pass (pbrt-v3's SPPMIntegrator, whose structur
    Emission seen directly or through the specular chain goes to the pixel's direct term, and so
    does next-event estimation (one light sample, one shadow ray) at the visible point: direct
    light never comes from photons.
-2. **Photon pass.** ``photons_per_pass`` photons leave the lights (chosen by power as in
-   :class:`render.lights.LightSet`; area sources: a uniform point, a cosine-weighted direction
-   on the emitting side, flux Le pi A / p_select, twice that and a random side if two-sided;
-   point, spot and directional lights: uniform sphere, uniform cone, a disk of the scene's
-   bounding radius). They scatter off diffuse, mirror and glass surfaces with Russian roulette
+2. **Photon pass.** ``photons_per_pass`` photons leave the lights
+   (:func:`render.lights.sample_emission`: chosen by power as in :class:`render.lights.LightSet`;
+   area sources: a uniform point, a cosine-weighted direction on the emitting side, flux
+   Le pi A / p_select, twice that and a random side if two-sided; point, spot and directional
+   lights: uniform sphere, uniform cone, a disk of the scene's bounding radius). They scatter
+   off diffuse, mirror and glass surfaces with Russian roulette
    (survival = the BSDF's albedo, so flux stays constant on diffuse bounces) and are *stored at
    every diffuse hit but the first* (the first is direct light, counted by step 1).
    Photons carry importance, not radiance: refraction does not scale them by (eta_i/eta_t)^2
@@ -58,10 +59,8 @@ from scipy.spatial import cKDTree
 from .accel import spawn_origin
 from .bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample, lambert_sample
 from .camera import Camera
-from .lights import DIRECTIONAL, POINT, SPOT
-from .sampling import (INV_PI, cosine_hemisphere, dot3, max3, orthonormal_frame, to_local, to_world,
-                       uniform_sphere, uniform_triangle)
-from .scene import spot_falloff
+from .lights import sample_emission
+from .sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
 
 __all__ = ["SPPMResult", "render_sppm", "ALPHA"]
 
@@ -215,79 +214,19 @@ def _direct_at_visible_points(ps, vp: dict, rng: np.random.Generator) -> tuple[n
 
 
 # ---------------------------------------------------------------- photon pass
-def _scene_bounds(geom) -> tuple[np.ndarray, float]:
-    """(centre (3,), bounding radius) of the valid triangles (for directional-light photons)."""
-    v = geom.valid
-    if not v.any():
-        return np.zeros(3), 0.5 * geom.extent
-    pts = np.concatenate([geom.v0[v], geom.v0[v] + geom.e1[v], geom.v0[v] + geom.e2[v]])
-    lo, hi = pts.min(0), pts.max(0)
-    return 0.5 * (lo + hi), 0.5 * geom.extent
-
-
 def _emit_photons(ps, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """n photons from the scene's lights: (origins (n, 3), unit directions (n, 3), flux (n, 3)).
-
-    Light chosen by the LightSet's power pmf; flux = emitted power estimate / (pmf x pdfs).
-    Photons with zero flux (e.g. a spot's outside-the-cone direction) are dropped by the caller.
-    """
-    lights, geom = ps.lights, ps.geom
-    extent = geom.extent
-    o, d, flux = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
-    d[:, 2] = 1.0
-    if lights.empty or n == 0:
-        return o, d, flux
-    ent = np.minimum(np.searchsorted(lights.cdf, rng.random(n) * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
+    """n photons from the scene's lights: (origins (n, 3), unit directions (n, 3), flux (n, 3)),
+    by :func:`render.lights.sample_emission` (light chosen by the LightSet's power pmf; flux =
+    emitted power estimate / (pmf x pdfs)). Photons with zero flux (e.g. a spot's
+    outside-the-cone direction) are dropped by the caller."""
+    if ps.lights.empty or n == 0:
+        o, d = np.zeros((n, 3)), np.zeros((n, 3))
+        d[:, 2] = 1.0
+        return o, d, np.zeros((n, 3))
+    u_sel = rng.random(n)
     u_pos, u_dir, u_side = rng.random((n, 2)), rng.random((n, 2)), rng.random(n)
-    pmf = lights.pmf[ent]
-    a = np.nonzero(ent < lights.n_area)[0]
-    if len(a):
-        j = ent[a]
-        b = uniform_triangle(u_pos[a])
-        p = lights.a_v0[j] + b[:, 0:1] * lights.a_e1[j] + b[:, 1:2] * lights.a_e2[j]
-        nl = lights.a_normal[j]
-        two = lights.two_sided[j]
-        flip = two & (u_side[a] < 0.5)
-        nl = np.where(flip[:, None], -nl, nl)
-        t1, t2 = orthonormal_frame(nl)
-        w = to_world(cosine_hemisphere(u_dir[a]), t1, t2, nl)
-        area = geom.area[lights.tri[j]]
-        # Le cos / (pmf / A  x  cos / pi  [x 1/2 side])
-        scale = np.pi * area * np.where(two, 2.0, 1.0) / np.maximum(pmf[a], 1e-300)
-        o[a] = spawn_origin(p, nl, w, extent)
-        d[a] = w
-        flux[a] = lights.Le[j] * scale[:, None]
-    if len(lights.d_kind):
-        centre, radius = _scene_bounds(geom)
-        for li in range(len(lights.d_kind)):  # few lights; vectorized over photons
-            m = np.nonzero(ent == lights.n_area + li)[0]
-            if len(m) == 0:
-                continue
-            kind, I, pm = lights.d_kind[li], lights.d_I[li], max(lights.pmf[lights.n_area + li], 1e-300)
-            if kind == POINT:
-                o[m], d[m] = lights.d_pos[li], uniform_sphere(u_dir[m])
-                flux[m] = I * (4.0 * np.pi / pm)
-            elif kind == SPOT:
-                ci, co = lights.d_cos[li]
-                cz = 1.0 - u_dir[m, 0] * (1.0 - co)  # uniform in the outer cone
-                sz = np.sqrt(np.maximum(0.0, 1.0 - cz * cz))
-                phi = 2.0 * np.pi * u_dir[m, 1]
-                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
-                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
-                loc = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
-                o[m], d[m] = lights.d_pos[li], to_world(loc, t1, t2, axis)
-                fall = spot_falloff(cz, ci, co)
-                flux[m] = I[None] * (fall * 2.0 * np.pi * (1.0 - co) / pm)[:, None]
-            else:  # directional: a disk of the scene's bounding radius, upstream of the scene
-                axis = np.broadcast_to(lights.d_dir[li], (len(m), 3))
-                t1, t2 = orthonormal_frame(np.ascontiguousarray(axis))
-                r = radius * np.sqrt(u_pos[m, 0])
-                phi = 2.0 * np.pi * u_pos[m, 1]
-                o[m] = (centre - 2.0 * radius * lights.d_dir[li]) + (r * np.cos(phi))[:, None] * t1 \
-                    + (r * np.sin(phi))[:, None] * t2
-                d[m] = axis
-                flux[m] = I * (np.pi * radius * radius / pm)
-    return o, d, flux
+    es = sample_emission(ps.lights, ps.geom, u_sel, u_pos, u_dir, u_side)
+    return es.o, es.d, es.flux
 
 
 def _photon_pass(ps, n: int, rng: np.random.Generator, max_depth: int, caustics: bool):

@@ -127,6 +127,12 @@ def test_choose_integrator():
         choose_integrator({"direct", "media"}, "path")
     with pytest.raises(ValueError, match="caustics"):
         choose_integrator({"direct", "caustics"}, "path", has_delta_lights=True)
+    with pytest.raises(ValueError, match="caustics"):
+        choose_integrator({"direct", "caustics"}, "pssmlt", has_delta_lights=True)
+    # delta-light caustics: only light tracing reaches them; auto picks the unbiased one
+    assert choose_integrator({"direct", "caustics"}, has_delta_lights=True) == "bdpt"
+    with pytest.raises(ValueError, match="caustics"):  # volpath cannot, bdpt does not render media
+        choose_integrator({"direct", "caustics", "media"}, has_delta_lights=True)
 
 
 def test_unreachable_effects_raise_from_render(cornell):
@@ -137,7 +143,8 @@ def test_unreachable_effects_raise_from_render(cornell):
                             SceneObject("floor", quad((0, 0, -0.5), 2, 2), Lambertian(0.5))],
                   lights=[PointLight([0, 0, 2.0], [1, 1, 1])])
     with pytest.raises(ValueError, match="caustics"):
-        render(glass, cam, RenderSettings(spp=1))
+        render(glass, cam, RenderSettings(integrator="path", spp=1))
+    assert render(glass, cam, RenderSettings(spp=1)).integrator == "bdpt"
     glass.effects = frozenset({"direct", "shadows", "specular"})
     r = render(glass, Camera(Intrinsics.from_fov(8, 8, 50), look_at([0, -2, 0.5], [0, 0, 0], [0, 0, 1])),
                RenderSettings(spp=4))

@@ -1,0 +1,659 @@
+"""``bdpt``: bidirectional path tracing (Veach 1997, ch. 10; pbrt-v3's BDPTIntegrator), numpy wavefront.
+
+For every camera sample one *eye subpath* z_0 (the pinhole) z_1 .. z_{t-1} and one *light
+subpath* y_0 (a point on a light) y_1 .. y_{s-1} are traced, then every pair of prefixes is
+joined, each join (s, t) being one sampling strategy for paths of s + t vertices:
+
+* s = 0: the eye subpath hits an emitter (or escapes to the background, see below);
+* s = 1: next-event estimation: a fresh light sample (:meth:`render.lights.LightSet.sample`)
+  is connected to z_{t-1} with a shadow ray;
+* t = 1: light tracing: y_{s-1} is connected to the pinhole and *splatted* to the pixel it
+  projects to, with the pinhole's importance We = 1 / (A cos^4 theta) (pbrt's
+  PerspectiveCamera; A = W H / (fx fy) is the image's area on the plane z = 1; each pass
+  traces one light subpath per pixel, so a splat's expected sum over a pass is the pixel
+  measurement with importance 1 / (A_pixel cos^4));
+* s, t >= 2: y_{s-1} and z_{t-1} are joined by a shadow ray (f G f).
+
+(s, t) = (1, 1) is skipped, as in pbrt: a light seen directly comes from s = 0 alone.
+Every contribution is weighted by multiple importance sampling over all strategies of its path
+length, power heuristic (Veach and Guibas 1995; ``heuristic="balance"`` gives pbrt's balance
+weights), with pbrt-v3's MISWeight bookkeeping: each vertex stores the area densities
+``pdfFwd`` (how its own subpath generated it) and ``pdfRev`` (how the other direction would
+have), delta (specular) densities are stored as 0 and remapped to 1, a strategy whose join
+touches a delta vertex (or a delta light's s = 0) is excluded from the sum, and the four
+densities a join changes (the pdfRev of z_{t-1}, z_{t-2}, y_{s-1}, y_{s-2}) are recomputed for
+it. The sums of ratio products over the unchanged vertices are prefix sums per subpath, so a
+strategy's weight costs O(1) array operations.
+
+Scope: Lambertian (RGB or texture; also :class:`render.bsdf.DiffuseEmitter`), mirror and
+dielectric (Fresnel, refraction, total internal reflection) surfaces; one- and two-sided area
+emitters and point, spot and directional lights (their emission sampled by
+:func:`render.lights.sample_emission`; a directional light is an infinite, delta-direction
+source as in pbrt: its light subpaths start on a disk of the scene's bounding radius).
+``scene.background`` (uniform radiance at infinity) is reached by escaping eye rays only
+(strategy s = 0, weight 1: no other strategy samples it). GGX materials, participating media
+and distorted cameras raise ValueError naming bdpt.
+
+Transport modes: eye subpaths carry radiance, so refraction scales their throughput by
+(eta_i / eta_t)^2 (:func:`render.bsdf.dielectric_sample`); light subpaths carry importance and
+are not scaled (pbrt's TransportMode::Importance; Veach 1997, section 5.2). Shading uses
+geometric normals, so no shading-normal correction applies. Only Lambertian vertices are joined
+(the delta BSDFs' f is zero for every given direction).
+
+Path length: max_depth counts scattering events as in :mod:`render.pathtracer`: a full path
+of s + t vertices has s + t - 2 bounces and is kept iff that is <= max_depth (eye subpaths have
+up to max_depth + 2 vertices with the pinhole, light subpaths max_depth + 1). Russian roulette
+on subpath extension, when leaving a surface vertex of index >= rr_depth (0 = the first hit):
+survive with min(1, max(beta) / max(beta_1)) (beta_1 = 1 for eye subpaths, the emitted flux for
+light subpaths), survivors divided by it. The MIS weights ignore roulette (they still sum to one
+over the strategies, so the estimate stays unbiased).
+
+Caustics pruning: without 'caustics' among the effects, a path is dropped when, read from the
+light, a specular vertex precedes a diffuse one (light that reaches a diffuse vertex through a
+specular one, L..S..D..E, what volpath and sppm prune): per subpath vertex two flags (a diffuse /
+specular vertex seen so far, such an ordered pair seen so far) decide it for every join, and
+subpaths stop extending once the pair is seen.
+
+Film and variance: one *pass* = one eye and one light subpath per pixel; its image (eye
+contributions plus all splats of its light subpaths) is an unbiased estimate of every pixel, and
+passes are independent, so the film holds per-pixel moments of pass images (n = passes):
+``RenderResult.variance`` is the honest variance of the mean even though splats land in other
+pixels (0 below two passes). Random numbers are the counter-based hash of
+:mod:`render.sampling` keyed by (seed, pixel, pass) (light subpaths on a separate key stream),
+so a pass's image does not depend on how passes are batched: renders of disjoint sample
+(= pass) ranges merge exactly (:func:`render.film.merge_results`) and are deterministic.
+Secondary and shadow rays start at :func:`render.accel.spawn_origin` offsets.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .accel import spawn_origin
+from .bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
+from .camera import Camera
+from .film import Film, RenderResult
+from .lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
+from .sampling import INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+
+__all__ = ["render_bdpt", "render_result"]
+
+# how a density leaving a vertex converts to an area density at the previous one
+_SURF, _POINTLIKE, _INFINITE = 0, 1, 2
+#: light subpath j's hash key is that of "pixel" j + _LIGHT_STREAM (eye subpaths use pixel j)
+_LIGHT_STREAM = 1 << 40
+#: random dimensions: eye: jitter (0, 1), then per vertex i >= 1 from 2 + 8 (i - 1): lobe,
+#: direction (2), roulette, light pick, light point (2), spare. Light: pick, point (2),
+#: direction (2), side, then per vertex from 6 + 4 (i - 1): lobe, direction (2), roulette.
+_EYE_DIM0, _EYE_STEP, _LIGHT_DIM0, _LIGHT_STEP = 2, 8, 6, 4
+_CLAMP = 1e150  # density ratios are clamped to [1 / _CLAMP, _CLAMP] before the heuristic's power
+_BIG = 1e300
+_DEFAULT_BATCH = 1 << 14
+
+
+def _check_supported(scene, mats, camera: Camera) -> None:
+    if mats.has_glossy:
+        raise ValueError("integrator 'bdpt' cannot shade glossy (GGX) materials; use 'volpath'")
+    if getattr(scene, "media", None):
+        raise ValueError("integrator 'bdpt' cannot reach effect 'media' (participating media); use 'volpath'")
+    if camera.intrinsics.has_distortion:
+        raise ValueError("integrator 'bdpt' needs a pinhole camera without distortion (light tracing projects "
+                         "onto the ideal image); render the pinhole image and distort it afterwards")
+
+
+class _Subpaths:
+    """N subpaths of up to nv vertices, vertex-major arrays (nv, N, ...).
+
+    alive: the vertex exists. p, ng (geometric normal), nf (BSDF frame normal: facing wo for
+    two-sided materials, outward for dielectrics), wo (unit, towards the previous vertex),
+    beta (throughput arriving at the vertex), alb (diffuse albedo or mirror reflectance).
+    fwd / rev: area densities of the vertex from its own subpath / from the other direction
+    (0 = delta). conv: factor turning a solid-angle density leaving vertex i towards i - 1
+    into an area density at i - 1. delta: specular vertex. kind, obj, tri: material kind,
+    object, triangle. has / caus: caustics-pruning flags (see the module docstring).
+    cond, S: MIS prefix data (:func:`_prefix`).
+    """
+
+    def __init__(self, nv: int, n: int):
+        self.nv = nv
+        self.alive = np.zeros((nv, n), bool)
+        self.p, self.ng, self.nf, self.wo, self.beta, self.alb = (np.zeros((nv, n, 3)) for _ in range(6))
+        self.fwd, self.rev, self.conv = np.zeros((nv, n)), np.zeros((nv, n)), np.zeros((nv, n))
+        self.delta = np.zeros((nv, n), bool)
+        self.kind = np.full((nv, n), -1, np.int64)
+        self.obj = np.zeros((nv, n), np.int64)
+        self.tri = np.zeros((nv, n), np.int64)
+        self.has = np.zeros((nv, n), bool)
+        self.caus = np.zeros((nv, n), bool)
+        self.cond = np.zeros((nv, n))
+        self.S = np.zeros((nv, n))
+
+
+@dataclass
+class _Ctx:
+    ps: object  # render.pathtracer.PreparedScene
+    camera: Camera
+    max_depth: int
+    roulette: bool
+    rr_depth: int
+    caustics: bool
+    hexp: float
+    only: frozenset | None
+    radius: float
+    rays: int = 0
+
+    def use(self, s: int, t: int) -> bool:
+        return self.only is None or (s, t) in self.only
+
+
+def _ratio(num: np.ndarray, den: np.ndarray, hexp: float) -> np.ndarray:
+    """(remap0(num) / remap0(den))^hexp, clamped (pbrt's remap0: a zero (delta) density counts as 1)."""
+    r = np.where(num != 0, num, 1.0) / np.where(den != 0, den, 1.0)
+    return np.clip(r, 1.0 / _CLAMP, _CLAMP) ** hexp
+
+
+def _prefix(sub: _Subpaths, hexp: float, cond0: np.ndarray | None) -> None:
+    """MIS prefix sums of a subpath's stored densities (pbrt's MISWeight loops, unrolled).
+
+    cond[i] = 1 if moving the join to vertex i is a valid strategy (neither vertex i nor i - 1
+    is delta; for a light subpath's vertex 0: the light is not a delta light, ``cond0``).
+    S[m] = sum_{i <= m} cond[i] prod_{i <= j <= m} r_j^hexp, r_j = rev_j / fwd_j, over vertices
+    1..m of an eye subpath (the pinhole is never a join) or 0..m of a light subpath.
+    """
+    r = _ratio(sub.rev, sub.fwd, hexp)
+    sub.cond[1:] = ~sub.delta[1:] & ~sub.delta[:-1]
+    if cond0 is not None:
+        sub.cond[0] = cond0
+        sub.S[0] = r[0] * sub.cond[0]
+    else:
+        sub.S[0] = 0.0
+    with np.errstate(over="ignore"):
+        for m in range(1, sub.nv):
+            sub.S[m] = np.minimum(r[m] * (sub.cond[m] + sub.S[m - 1]), _BIG)
+
+
+def _eye_sum(E: _Subpaths, t: int, k: np.ndarray, r1, r2) -> np.ndarray:
+    """Sum of relative densities^hexp of the strategies moving the join into the eye subpath.
+    r1, r2: the join's (ratio^hexp) at z_{t-1} and z_{t-2} (r2 unused for t = 2)."""
+    if t <= 1:
+        return np.zeros(len(k))
+    if t == 2:
+        return r1  # the pinhole is not delta: (s + 1, 1), light tracing, counts
+    inner = E.cond[t - 2, k] + E.S[t - 3, k]
+    with np.errstate(over="ignore"):
+        return np.minimum(r1 * ((~E.delta[t - 2, k]) + np.minimum(r2 * inner, _BIG)), _BIG)
+
+
+def _light_sum(L: _Subpaths, s: int, k: np.ndarray, r1, r2, cond0=None) -> np.ndarray:
+    """The same along the light subpath. r1, r2: at y_{s-1}, y_{s-2}. cond0: for s = 1, whether
+    the sampled light is not a delta light (s = 0 counts)."""
+    if s == 0:
+        return np.zeros(len(k))
+    if s == 1:
+        return r1 * cond0
+    inner = (L.cond[s - 2, k] if s >= 2 else 0.0) + (L.S[s - 3, k] if s >= 3 else 0.0)
+    with np.errstate(over="ignore"):
+        return np.minimum(r1 * ((~L.delta[s - 2, k]) + np.minimum(r2 * inner, _BIG)), _BIG)
+
+
+def _lambert(sub: _Subpaths, i: int, k: np.ndarray, w: np.ndarray):
+    """BSDF at vertices (i, k) for the direction w (K, 3): (f (K, 3), cos of w against the frame
+    normal (K,), pdf of sampling w (K,), pdf of sampling wo given w (K,)). Joined vertices are
+    Lambertian (render.bsdf.bsdf_eval / bsdf_pdf in the vertex's local frame)."""
+    nf = sub.nf[i, k]
+    t1, t2 = orthonormal_frame(nf)
+    wo_l = to_local(sub.wo[i, k], t1, t2, nf)
+    wi_l = to_local(w, t1, t2, nf)
+    kind = sub.kind[i, k]
+    return (bsdf_eval(kind, sub.alb[i, k], wo_l, wi_l), wi_l[:, 2], bsdf_pdf(kind, wo_l, wi_l),
+            bsdf_pdf(kind, wi_l, wo_l))
+
+
+def _segment(o_p, o_n, t_p, t_n, extent):
+    """Shadow rays between surface points o_p and t_p (K, 3) (normals o_n, t_n; None: a point
+    not on a surface): both ends offset towards each other. (origins, unit dirs, tmax)."""
+    w = t_p - o_p
+    w = w / np.maximum(np.linalg.norm(w, axis=1), 1e-300)[:, None]
+    o = spawn_origin(o_p, o_n, w, extent)
+    tgt = t_p if t_n is None else spawn_origin(t_p, t_n, -w, extent)
+    v = tgt - o
+    dist = np.linalg.norm(v, axis=1)
+    return o, v / np.maximum(dist, 1e-300)[:, None], dist * (1.0 - 1e-6)
+
+
+# ---------------------------------------------------------------- subpaths
+def _walk(ctx: _Ctx, sub: _Subpaths, paths, o, d, beta, pdf_dir, prev_p, prev_n, prev_mode, keys, light: bool,
+          escapes: list) -> None:
+    """Extend subpaths from their vertex 0 (filled by the caller) to vertices 1 .. nv - 1.
+
+    paths: (M,) indices of the subpaths whose first ray (o, d (M, 3)) is traced; beta (M, 3) the
+    throughput arriving at vertex 1; pdf_dir (M,) the density of d (solid angle; per unit area
+    perpendicular to d when prev_mode is _INFINITE); prev_p, prev_n, prev_mode: vertex 0.
+    Escaping eye rays are appended to ``escapes`` as (paths, beta, vertex index they leave).
+    """
+    ps = ctx.ps
+    geom, mats, accel = ps.geom, ps.mats, ps.accel
+    extent = geom.extent
+    has_bg = not light and bool(ps.background.max() > 0)
+    ref = max3(beta) if light else np.ones(len(paths))
+    dim0, step = (_LIGHT_DIM0, _LIGHT_STEP) if light else (_EYE_DIM0, _EYE_STEP)
+    floor2 = (1e-9 * extent) ** 2
+    for i in range(1, sub.nv):
+        if len(paths) == 0:
+            break
+        h = accel.intersect(o, d)
+        ctx.rays += len(paths)
+        hit = h.tri >= 0
+        if has_bg and not hit.all():
+            escapes.append((paths[~hit], beta[~hit], i - 1))
+        if not hit.all():
+            paths, d, beta, pdf_dir, ref = paths[hit], d[hit], beta[hit], pdf_dir[hit], ref[hit]
+            prev_p, prev_n, prev_mode = prev_p[hit], prev_n[hit], prev_mode[hit]
+        tri, hu, hv = h.tri[hit], h.u[hit], h.v[hit]
+        p, ng = geom.point_normal(tri, hu, hv)
+        obj = geom.obj[tri]
+        kind = mats.kind[obj]
+        w = p - prev_p
+        d2 = np.maximum(dot3(w, w), floor2)
+        cos_in = np.abs(dot3(d, ng))
+        inf = prev_mode == _INFINITE
+        fwd = np.where(inf, pdf_dir * cos_in, pdf_dir * cos_in / d2)
+        conv = np.where(prev_mode == _SURF, np.abs(dot3(prev_n, d)) / d2, np.where(inf, 1.0, 1.0 / d2))
+        flip = (kind != DIELECTRIC) & (dot3(ng, d) > 0)
+        nf = np.where(flip[:, None], -ng, ng)
+        lamb = kind == LAMBERT
+        delta = (kind == MIRROR) | (kind == DIELECTRIC)
+        alb = mats.albedo[obj]
+        if mats.textures and lamb.any():
+            li = np.nonzero(lamb)[0]
+            alb[li] = mats.diffuse_albedo(obj[li], lambda m: geom.texcoords(tri[li][m], hu[li][m], hv[li][m]))
+        has0, caus0 = sub.has[i - 1, paths], sub.caus[i - 1, paths]
+        if light:  # read from the light: a specular vertex, then a diffuse one
+            has, caus = has0 | delta, caus0 | (has0 & lamb)
+        else:  # read from the eye: a diffuse vertex, then a specular one
+            has, caus = has0 | lamb, caus0 | (has0 & delta)
+        sub.alive[i, paths] = True
+        sub.p[i, paths], sub.ng[i, paths], sub.nf[i, paths], sub.wo[i, paths] = p, ng, nf, -d
+        sub.beta[i, paths], sub.alb[i, paths] = beta, alb
+        sub.fwd[i, paths], sub.conv[i, paths], sub.delta[i, paths] = fwd, conv, delta
+        sub.kind[i, paths], sub.obj[i, paths], sub.tri[i, paths] = kind, obj, tri
+        sub.has[i, paths], sub.caus[i, paths] = has, caus
+        if i == sub.nv - 1:
+            break
+        ext = lamb | delta
+        if not ctx.caustics:
+            ext &= ~caus  # every path through this vertex and beyond would be pruned
+        e = np.nonzero(ext)[0]
+        if len(e) == 0:
+            break
+        pe = paths[e]
+        u = uniform_block(keys[pe], dim0 + step * (i - 1), 4)
+        nfe = nf[e]
+        t1, t2 = orthonormal_frame(nfe)
+        wo_l = to_local(-d[e], t1, t2, nfe)
+        ke = kind[e]
+        bs = bsdf_sample(ke, alb[e], mats.ior[obj[e]], wo_l, u[:, 0], u[:, 1:3])
+        wi = to_world(bs.wi, t1, t2, nfe)
+        weight = bs.weight
+        if light:  # importance transport: no (eta_i / eta_t)^2 radiance scaling through glass
+            glass = ke == DIELECTRIC
+            if glass.any():
+                weight[glass] = bs.valid[glass, None].astype(np.float64)
+        rev_solid = np.where(bs.delta, 0.0, bsdf_pdf(ke, bs.wi, wo_l))
+        sub.rev[i - 1, pe] = rev_solid * conv[e]
+        nb = beta[e] * weight
+        ok = bs.valid & (max3(nb) > 0)
+        if ctx.roulette and i - 1 >= ctx.rr_depth:
+            q = np.minimum(1.0, max3(nb) / ref[e])
+            ok &= u[:, 3] < q
+            nb = nb / np.where(ok, q, 1.0)[:, None]
+        s = e[ok]
+        paths, beta, d = paths[s], nb[ok], wi[ok]
+        pdf_dir = np.where(bs.delta[ok], 0.0, bs.pdf[ok])
+        o = spawn_origin(p[s], ng[s], d, extent)
+        prev_p, prev_n, prev_mode, ref = p[s], ng[s], np.full(len(s), _SURF), ref[s]
+
+
+# ---------------------------------------------------------------- one batch of passes
+def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pix1: int) -> np.ndarray:
+    """Passes sample0 .. sample0 + n_pass - 1 over pixels [pix0, pix1) (all pixels when n_pass > 1).
+    Returns (n_pass * H * W, 3) float64: the passes' images (eye contributions + splats)."""
+    ps, cam = ctx.ps, ctx.camera
+    geom, mats, lights = ps.geom, ps.mats, ps.lights
+    extent = geom.extent
+    k = cam.intrinsics
+    W, H = k.width, k.height
+    npix = W * H
+    npc = pix1 - pix0
+    N = n_pass * npc
+    flat = np.arange(N)
+    pass_local = flat // npc
+    pixel = pix0 + flat % npc
+    sample = sample0 + pass_local
+    keys_e = path_keys(seed, pixel, sample)
+    keys_l = path_keys(seed, pixel + _LIGHT_STREAM, sample)
+    tgt_eye = pass_local * npix + pixel
+    md = ctx.max_depth
+    VE, VL = md + 2, md + 1
+    A = W * H / (k.fx * k.fy)  # image area on the plane z = 1
+    centre = cam.cam_to_world[:3, 3].copy()
+    fwd_axis = cam.cam_to_world[:3, 2]
+    hexp = ctx.hexp
+    weighted = ctx.only is None
+
+    # ---- eye subpaths
+    E = _Subpaths(VE, N)
+    E.alive[0] = True
+    E.p[0] = centre
+    E.fwd[0] = 1.0
+    u = uniform_block(keys_e, 0, 2)
+    jit = np.stack([pixel % W + u[:, 0], pixel // W + u[:, 1]], axis=1)
+    o, d = cam.pixel_rays(jit)
+    cos0 = d @ fwd_axis
+    escapes = []
+    _walk(ctx, E, flat, o, d, np.ones((N, 3)), 1.0 / (A * cos0 ** 3), o, np.zeros((N, 3)),
+          np.full(N, _POINTLIKE), keys_e, False, escapes)
+
+    # ---- light subpaths
+    L = _Subpaths(VL, N)
+    lkind = np.full(N, AREA, np.int64)
+    if not lights.empty:
+        u = uniform_block(keys_l, 0, 6)
+        es = sample_emission(lights, geom, u[:, 0], u[:, 1:3], u[:, 3:5], u[:, 5])
+        lkind = es.kind
+        live = np.nonzero(max3(es.flux) > 0)[0]
+        dirl = es.kind == DIRECTIONAL
+        L.alive[0, live] = True
+        L.p[0], L.ng[0] = es.p, es.normal
+        L.fwd[0] = np.where(dirl, 0.0, es.pmf * es.pdf_pos)  # pbrt: 0 for a delta-direction light
+        mode = np.where(es.kind == AREA, _SURF, np.where(dirl, _INFINITE, _POINTLIKE))
+        pdf_dir = np.where(dirl, es.pdf_pos, es.pdf_dir)
+        _walk(ctx, L, live, es.o[live], es.d[live], es.flux[live], pdf_dir[live], es.p[live], es.normal[live],
+              mode[live], keys_l, True, [])
+    delta_light = lkind != AREA
+
+    _prefix(E, hexp, None)
+    _prefix(L, hexp, ~delta_light)
+
+    direct_t, direct_v = [], []  # contributions needing no shadow ray
+    sh_o, sh_d, sh_t, sh_tgt, sh_v = [], [], [], [], []
+
+    def shadow(o_, d_, t_, tgt, val):
+        sh_o.append(o_), sh_d.append(d_), sh_t.append(t_), sh_tgt.append(tgt), sh_v.append(val)
+
+    # ---- s = 0: escaping eye rays (background) and eye subpaths hitting emitters
+    for paths, beta, i in escapes:  # the ray leaving z_i escaped: strategy (0, i + 2), the only one
+        if not ctx.use(0, i + 2):
+            continue
+        keep = np.ones(len(paths), bool) if ctx.caustics else ~E.caus[i, paths]
+        direct_t.append(tgt_eye[paths[keep]])
+        direct_v.append(beta[keep] * ps.background)
+    for t in range(2, VE + 1):
+        i = t - 1
+        if not ctx.use(0, t):
+            continue
+        sel = E.alive[i] & mats.emits[E.obj[i]]
+        if not ctx.caustics:
+            sel &= ~E.caus[i - 1]
+        kk = np.nonzero(sel)[0]
+        if len(kk) == 0:
+            continue
+        obj = E.obj[i, kk]
+        cos_e = dot3(E.wo[i, kk], E.ng[i, kk])
+        two = mats.two_sided[obj]
+        front = two | (cos_e > 0)
+        kk, obj, cos_e, two = kk[front], obj[front], cos_e[front], two[front]
+        C = E.beta[i, kk] * mats.Le[obj]
+        if weighted and t > 2:
+            pt_rev = lights.tri_pdf_area[E.tri[i, kk]]
+            ptm_rev = np.abs(cos_e) * INV_PI * np.where(two, 0.5, 1.0) * E.conv[i, kk]
+            es_ = _eye_sum(E, t, kk, _ratio(pt_rev, E.fwd[i, kk], hexp), _ratio(ptm_rev, E.fwd[i - 1, kk], hexp))
+            C = C / (1.0 + es_)[:, None]
+        direct_t.append(tgt_eye[kk])
+        direct_v.append(C)
+
+    # ---- s = 1: next-event estimation at z_{t-1}
+    if not lights.empty:
+        for t in range(2, md + 2):
+            i = t - 1
+            if not ctx.use(1, t):
+                continue
+            sel = E.alive[i] & (E.kind[i] == LAMBERT)
+            if not ctx.caustics:
+                sel &= ~E.caus[i]
+            kk = np.nonzero(sel)[0]
+            if len(kk) == 0:
+                continue
+            u = uniform_block(keys_e[kk], _EYE_DIM0 + _EYE_STEP * (i - 1) + 4, 3)
+            p = E.p[i, kk]
+            ls = lights.sample(p, u[:, 0], u[:, 1:3])
+            f, cos_p, pdf_l, pdf_r = _lambert(E, i, kk, ls.wi)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                C = E.beta[i, kk] * f * ls.Li * (cos_p / ls.pdf)[:, None]
+            ok = ls.valid & (cos_p > 0) & (ls.pdf > 0) & np.isfinite(ls.pdf)
+            ok &= np.all(np.isfinite(C), axis=1) & (max3(np.where(ok[:, None], C, 0.0)) > 0)
+            m = np.nonzero(ok)[0]
+            if len(m) == 0:
+                continue
+            kk, p, C, cos_p, pdf_l, pdf_r = kk[m], p[m], C[m], cos_p[m], pdf_l[m], pdf_r[m]
+            wi, dist = ls.wi[m], ls.dist[m]
+            ent = np.minimum(np.searchsorted(lights.cdf, u[m, 0] * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
+            is_area = ent < lights.n_area
+            finite = np.isfinite(dist)
+            dist_f = np.where(finite, dist, 1.0)
+            d2 = dist_f * dist_f
+            ln = np.zeros((len(m), 3))  # the light point's normal (area), for the offset and the densities
+            if weighted or is_area.any():
+                a = np.nonzero(is_area)[0]
+                ln[a] = lights.a_normal[ent[a]]
+            if weighted:
+                # the sampled light vertex: its density (pdfFwd), its emission density towards z_{t-1}
+                fwd_q = np.zeros(len(m))
+                pdir = np.zeros(len(m))
+                conv_q = np.where(finite, 1.0 / d2, 1.0)
+                a = np.nonzero(is_area)[0]
+                if len(a):
+                    ja = ent[a]
+                    cos_l = np.abs(dot3(wi[a], ln[a]))
+                    fwd_q[a] = lights.a_pdf_area[ja]
+                    pdir[a] = cos_l * INV_PI * np.where(lights.two_sided[ja], 0.5, 1.0)
+                    conv_q[a] = cos_l / d2[a]
+                dl = np.nonzero(~is_area)[0]
+                if len(dl):
+                    li = ent[dl] - lights.n_area
+                    lk = lights.d_kind[li]
+                    fwd_q[dl] = np.where(lk == DIRECTIONAL, 0.0, lights.pmf[ent[dl]])
+                    co = lights.d_cos[li, 1]
+                    inside = -dot3(wi[dl], lights.d_dir[li]) >= co
+                    pdir[dl] = np.where(lk == POINT, 0.25 * INV_PI,
+                                        np.where(lk == SPOT, inside / (2.0 * np.pi * np.maximum(1.0 - co, 1e-300)),
+                                                 1.0 / (np.pi * ctx.radius ** 2)))
+                pt_rev = pdir * cos_p * np.where(finite, 1.0 / d2, 1.0)
+                qs_rev = pdf_l * conv_q
+                r1 = _ratio(pt_rev, E.fwd[i, kk], hexp)
+                r2 = _ratio(pdf_r * E.conv[i, kk], E.fwd[i - 1, kk], hexp)
+                tot = _eye_sum(E, t, kk, r1, r2) + _light_sum(L, 1, kk, _ratio(qs_rev, fwd_q, hexp), None, is_area)
+                C = C / (1.0 + tot)[:, None]
+            o_ = spawn_origin(p, E.ng[i, kk], wi, extent)
+            tgt_p = p + wi * dist_f[:, None]
+            tgt_p = np.where(is_area[:, None], spawn_origin(tgt_p, ln, -wi, extent), tgt_p)
+            v = tgt_p - o_
+            dd = np.linalg.norm(v, axis=1)
+            dirs = np.where(finite[:, None], v / np.maximum(dd, 1e-300)[:, None], wi)
+            tmax = np.where(finite, dd * (1.0 - 1e-6), 3e38)
+            shadow(o_, dirs, tmax, tgt_eye[kk], C)
+
+    # ---- t = 1: light tracing, y_{s-1} joined to the pinhole and splatted
+    for s in range(2, VL + 1):
+        j = s - 1
+        if not ctx.use(s, 1):
+            continue
+        sel = L.alive[j] & (L.kind[j] == LAMBERT)
+        if not ctx.caustics:
+            sel &= ~L.caus[j]
+        kk = np.nonzero(sel)[0]
+        if len(kk) == 0:
+            continue
+        q = L.p[j, kk]
+        uv, z = cam.project(q)
+        inside = (z > 0) & np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < W) \
+            & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        m = np.nonzero(inside)[0]
+        if len(m) == 0:
+            continue
+        kk, q, uv, z = kk[m], q[m], uv[m], z[m]
+        w = centre - q
+        d2 = dot3(w, w)
+        dist = np.sqrt(d2)
+        wn = w / dist[:, None]
+        f, cos_q, pdf_l, pdf_r = _lambert(L, j, kk, wn)
+        cos_cam = z / dist
+        pdf_cam = 1.0 / (A * cos_cam ** 3)  # the pinhole's direction density (per unit solid angle)
+        we = pdf_cam / cos_cam  # We = 1 / (A cos^4)
+        C = L.beta[j, kk] * f * (np.maximum(cos_q, 0.0) * we * cos_cam / d2)[:, None]
+        ok = (cos_q > 0) & (max3(C) > 0)
+        m = np.nonzero(ok)[0]
+        if len(m) == 0:
+            continue
+        kk, q, uv, C, cos_q, pdf_r, d2, wn = kk[m], q[m], uv[m], C[m], cos_q[m], pdf_r[m], d2[m], wn[m]
+        if weighted:
+            r1 = _ratio(pdf_cam[m] * cos_q / d2, L.fwd[j, kk], hexp)
+            r2 = _ratio(pdf_r * L.conv[j, kk], L.fwd[j - 1, kk], hexp)
+            C = C / (1.0 + _light_sum(L, s, kk, r1, r2))[:, None]
+        px = np.minimum(np.floor(uv[:, 0]).astype(np.int64), W - 1)
+        py = np.minimum(np.floor(uv[:, 1]).astype(np.int64), H - 1)
+        o_, d_, t_ = _segment(q, L.ng[j, kk], np.broadcast_to(centre, q.shape), None, extent)
+        shadow(o_, d_, t_, pass_local[kk] * npix + py * W + px, C)
+
+    # ---- s, t >= 2: join y_{s-1} and z_{t-1}
+    for t in range(2, VE + 1):
+        i = t - 1
+        for s in range(2, VL + 1):
+            if s + t - 2 > md or not ctx.use(s, t):
+                continue
+            j = s - 1
+            sel = E.alive[i] & L.alive[j] & (E.kind[i] == LAMBERT) & (L.kind[j] == LAMBERT)
+            if not ctx.caustics:
+                sel &= ~(E.caus[i] | L.caus[j] | (E.has[i] & L.has[j]))
+            kk = np.nonzero(sel)[0]
+            if len(kk) == 0:
+                continue
+            q, p = L.p[j, kk], E.p[i, kk]
+            w = p - q
+            d2 = np.maximum(dot3(w, w), (1e-9 * extent) ** 2)
+            wn = w / np.sqrt(d2)[:, None]
+            fq, cos_q, pq_f, pq_r = _lambert(L, j, kk, wn)
+            fp, cos_p, pp_f, pp_r = _lambert(E, i, kk, -wn)
+            g = np.maximum(cos_q, 0.0) * np.maximum(cos_p, 0.0) / d2
+            C = L.beta[j, kk] * fq * fp * E.beta[i, kk] * g[:, None]
+            ok = (cos_q > 0) & (cos_p > 0) & (max3(C) > 0)
+            m = np.nonzero(ok)[0]
+            if len(m) == 0:
+                continue
+            kk, q, p, C = kk[m], q[m], p[m], C[m]
+            if weighted:
+                cq, cp, dd2 = cos_q[m], cos_p[m], d2[m]
+                r1e = _ratio(pq_f[m] * cp / dd2, E.fwd[i, kk], hexp)
+                r2e = _ratio(pp_r[m] * E.conv[i, kk], E.fwd[i - 1, kk], hexp)
+                r1l = _ratio(pp_f[m] * cq / dd2, L.fwd[j, kk], hexp)
+                r2l = _ratio(pq_r[m] * L.conv[j, kk], L.fwd[j - 1, kk], hexp)
+                C = C / (1.0 + _eye_sum(E, t, kk, r1e, r2e) + _light_sum(L, s, kk, r1l, r2l))[:, None]
+            o_, d_, t_ = _segment(q, L.ng[j, kk], p, E.ng[i, kk], extent)
+            shadow(o_, d_, t_, tgt_eye[kk], C)
+
+    # ---- visibility and accumulation
+    img = np.zeros((n_pass * npix, 3))
+    tg = list(direct_t)
+    vals = list(direct_v)
+    if sh_o:
+        so, sd, st = np.concatenate(sh_o), np.concatenate(sh_d), np.concatenate(sh_t)
+        vis = ~ps.accel.occluded(so, sd, np.maximum(st, 0.0))
+        ctx.rays += len(so)
+        tg.append(np.concatenate(sh_tgt)[vis])
+        vals.append(np.concatenate(sh_v)[vis])
+    if tg:
+        tgc = np.concatenate(tg)
+        vc = np.concatenate(vals)
+        for c in range(3):
+            img[:, c] = np.bincount(tgc, weights=vc[:, c], minlength=n_pass * npix)
+    return img
+
+
+# ---------------------------------------------------------------- the integrator
+def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0, prepared=None, *,
+                sample_range: tuple[int, int] | None = None, roulette: bool = True, rr_depth: int = 3,
+                caustics: bool = True, heuristic: str = "power", batch_paths: int = _DEFAULT_BATCH,
+                strategies=None) -> RenderResult:
+    """Render ``camera``'s view of ``scene`` by bidirectional path tracing.
+
+    spp: passes (one eye and one light subpath per pixel each) when no sample_range is given.
+    sample_range: half-open range of pass indices [a, b) (renders of disjoint ranges merge).
+    max_depth: maximum scattering events of a full path. seed: the render's seed.
+    prepared: a :class:`render.pathtracer.PreparedScene` to reuse. roulette, rr_depth: Russian
+    roulette on subpath extension. caustics: False drops caustic paths (module docstring).
+    heuristic: "power" (default) or "balance". batch_paths: subpaths per wavefront batch (whole
+    passes are batched together; a large image's pass is split over pixels); it does not change
+    the per-pass images, only summation order.
+    strategies: None (all strategies, MIS-weighted) or a collection of (s, t) pairs to evaluate
+    *unweighted*, alone (a diagnostic: each strategy alone is an unbiased estimate of the paths
+    it can sample; the background counts as s = 0).
+
+    Returns a :class:`render.film.RenderResult`: mean (H, W, 3) float32 and the variance of the
+    mean from the per-pass images, integrator "bdpt", stats (time_s, paths, rays, passes).
+    """
+    from .pathtracer import prepare
+
+    t0 = time.perf_counter()
+    a, b = (0, int(spp)) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    if not 0 <= a < b:
+        raise ValueError(f"bdpt: sample_range must satisfy 0 <= start < stop, got {(a, b)}")
+    if int(max_depth) < 0 or int(rr_depth) < 0 or int(batch_paths) < 1:
+        raise ValueError("bdpt: max_depth and rr_depth must be >= 0, batch_paths >= 1")
+    if heuristic not in ("power", "balance"):
+        raise ValueError(f"bdpt: heuristic must be power or balance, got {heuristic!r}")
+    ps = prepared if prepared is not None else prepare(scene)
+    _check_supported(scene, ps.mats, camera)
+    only = None if strategies is None else frozenset((int(s), int(t)) for s, t in strategies)
+    ctx = _Ctx(ps, camera, int(max_depth), bool(roulette), int(rr_depth), bool(caustics),
+               2.0 if heuristic == "power" else 1.0, only, scene_bounds(ps.geom)[1])
+    k = camera.intrinsics
+    npix = k.width * k.height
+    film = Film(k.width, k.height)
+    seed = int(seed)
+    batch = int(batch_paths)
+
+    def add(img: np.ndarray) -> None:
+        if not np.all(np.isfinite(img)):
+            raise FloatingPointError("bdpt produced a non-finite radiance (a bug: please report)")
+        x = img.reshape(-1, npix, 3)
+        film.add_moments(x.sum(0), (x * x).sum(0), np.full(npix, len(x), np.int64))
+
+    if npix <= batch:
+        per = max(1, batch // npix)
+        for s0 in range(a, b, per):
+            n_pass = min(per, b - s0)
+            add(_render_chunk(ctx, seed, s0, n_pass, 0, npix))
+    else:
+        for s0 in range(a, b):
+            img = np.zeros((npix, 3))
+            for p0 in range(0, npix, batch):
+                img += _render_chunk(ctx, seed, s0, 1, p0, min(p0 + batch, npix))
+            add(img)
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(2 * npix * (b - a)), "rays": int(ctx.rays),
+             "passes": int(b - a)}
+    return RenderResult.from_film(film, (a, b), "bdpt", stats)
+
+
+def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None) -> RenderResult:
+    """:func:`render_bdpt` as :func:`render.pathtracer.render` calls it (settings: a
+    :class:`render.pathtracer.RenderSettings`: spp (passes), max_depth, seed, roulette,
+    rr_depth, heuristic, batch_paths). Caustic paths are dropped when 'caustics' is not among
+    ``effects`` (None: kept)."""
+    caustics = True if effects is None else "caustics" in frozenset(effects)
+    # batches above 2^14 subpaths only cost memory (about 10 kB per subpath pair at max depth 8)
+    return render_bdpt(scene, camera, settings.spp, max_depth=settings.max_depth, seed=settings.seed,
+                       prepared=prepared, sample_range=sample_range, roulette=settings.roulette,
+                       rr_depth=settings.rr_depth, caustics=caustics, heuristic=settings.heuristic,
+                       batch_paths=min(settings.batch_paths, _DEFAULT_BATCH))

@@ -1,0 +1,465 @@
+"""``pssmlt``: Metropolis light transport in primary sample space (Kelemen et al. 2002), numpy.
+
+**The path sampler.** :func:`sample_paths` is a unidirectional path tracer written as a
+deterministic function of a point U in the primary sample space [0, 1)^D, D = 2 +
+:data:`DIMS_PER_BOUNCE` x max_depth (:func:`primary_dims`). Columns 0, 1 place the camera
+sample on the image plane (x = W u0, y = H u1, so the pixel is (floor(y), floor(x)) and the
+jitter inside it the fractional parts); scattering vertex k (0 = the first hit) reads the six
+columns 2 + 6k .. 2 + 6k + 5: light pick, light uv (2) for next-event estimation, BSDF lobe
+(glass: reflect or refract), BSDF uv (2). It follows render.pathtracer's conventions and its
+compiled kernel (render.pt_kernels.shade_bounce) exactly: the same radiometry and light units,
+max_depth counts scattering events, the camera ray counts as specular (emission seen directly
+has weight 1), one-sided emitters, two-sided Lambert and mirror frames, outward dielectric
+frames, background radiance for escaping rays, next-event estimation and cosine BSDF sampling
+at Lambertian vertices combined by MIS (power heuristic by default), delta lights by NEE only,
+and without 'caustics' among the effects, emission and background reached through a specular
+chain that follows a diffuse vertex are dropped. There is no Russian roulette (the contribution
+must be a deterministic function of U), so a uniform U gives an unbiased estimate of the same
+box-filtered pixel measurement as `path`:
+
+    I_p = W H E_U[ f(U) 1{pixel(U) = p} ],   f(U) the path's (3,) RGB radiance contribution.
+
+The sampler is a numpy wavefront (render.volpath's structure): each bounce is one Embree query
+for all live paths and one occlusion query for their shadow rays; survivors are compacted and
+carry their row index, so column look-ups stay per path. It reuses the prepared scene of
+render.pathtracer (BVH, material table, light distribution), render.bsdf's samplers,
+render.lights.LightSet and render.accel.spawn_origin.
+
+**Metropolis.** The scalar importance is I(U) = luminance (Rec. 709: 0.2126, 0.7152, 0.0722)
+of f(U) >= 0. Its integral b = E_U[I(U)] (the mean image luminance) is estimated by a bootstrap
+of uniform samples; C chains are started by resampling the bootstrap samples in proportion to I
+(so each starts, approximately, in the stationary density I / b, and always with I > 0: a chain
+never moves to a zero-importance state since those are always rejected). Every step advances
+all chains together. With probability p_large a chain proposes a *large step*, a fresh uniform
+U; otherwise a *small step* perturbs every coordinate by +-s2 exp(-ln(s2 / s1) xi) (s1 = 1/1024,
+s2 = 1/64, random sign; Kelemen's mutation), wrapped into [0, 1). Both proposals are symmetric,
+so the proposal Y is accepted with a = min(1, I(Y) / I(X)).
+
+**The estimator** (Kelemen et al. 2002, section 5; the one of smallpssmlt and Mitsuba's PSSMLT).
+Two sampling techniques produce paths: the Metropolis chain (expected-value splatting: each step
+adds the proposal with weight a and the current state with weight 1 - a, which is the expectation
+of the state after the step, so each step is one sample of density I / b) and the large steps
+(with probability p_large per step, a uniform sample of density 1). Combining them by the
+balance heuristic, a path of importance I has density I / b + p_large per step, and each step
+splats
+
+    proposal Y:  f(Y) (a + [large step]) / (I(Y) / b + p_large)
+    current  X:  f(X) (1 - a)            / (I(X) / b + p_large)
+
+to their pixels. The image is W H / M x the sum of the splats over all M steps of all chains
+(M = spp x W x H mutations: ``spp`` is mutations per pixel on average; C chains advance
+ceil(M / C) steps each, so M is rounded up to whole steps), an estimate of the same I_p as
+`path`: consistent, with the start-up bias that resampling the bootstrap leaves (none in the
+limit of a large bootstrap). With p_large = 0 the weights are pbrt-v3's MLTIntegrator's (splat
+a f / I and (1 - a) f / I, scale by b; pbrt keeps large steps but does not weight them); the
+large-step term adds what independent sampling finds well (dark regions) and cuts the variance
+there. A wrong b biases every pixel by up to its relative error.
+
+**Variance.** Metropolis samples are correlated, so the per-sample variance is meaningless. The
+chains are split into K >= 8 *independent groups* (``groups``, default 16), each with its own
+bootstrap (its own b: n_bootstrap / K uniform samples), its own chains and its own image; the
+render is the mean of the K group images and its variance image is the sample variance of the
+K group images / K (an honest variance of the mean: it includes the bootstrap's error and the
+chains' correlation; with K = 16 a pixel's variance estimate has 15 degrees of freedom, so
+compare per-pixel errors with Student's t_15, not the normal). Pixels of one group share its b
+and its chains, so their errors are correlated: an aggregate over pixels (the image mean, a
+region's mean) takes its variance from the group images (``PSSMLTResult.groups``), not from
+the sum of the variance image. The RenderResult's film holds the K group images as K "samples"
+per pixel, so Film.mean and Film.variance reproduce both.
+
+**Hard cases.** A chain in a tiny bright region rejects almost every proposal (small steps leave
+the region, large steps land in darker ones): it stays, splatting (1 - a) onto that pixel; the
+estimator stays finite and unbiased, and the group variance reports the resulting noise
+(:class:`PSSMLTResult` records acceptance rates by importance and the longest rejection run).
+If a group's bootstrap finds no light (b = 0) the group runs no chain and its image is black (a
+bias of P(b_g = 0) x the image, negligible unless light is found by under ~5 bootstrap samples
+per group, and visible in the group spread); if no group finds any, the render is black and
+finite and says so (``found_light`` False, stats["no_light"] True), never NaN.
+
+Supported: Lambertian (textured too), mirror, dielectric, area lights, point / spot /
+directional lights (next-event estimation only), background radiance; pinhole cameras and
+distorted ones (rays through :meth:`render.camera.Camera.pixel_rays`). GGX materials and
+participating media raise ValueError naming pssmlt. Like sppm, a render is a chain, not a set
+of independent samples: ``sample_range`` must start at 0 and renders cannot be merged or refined.
+
+Random numbers: bootstrap samples are the counter-based hash of render.sampling (seed, group,
+index, dimension); chain selection and mutations come from numpy Generators seeded by (seed,
+stream). Same seed, same bytes.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .accel import offset_eps, spawn_origin
+from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, bsdf_sample
+from .camera import Camera
+from .effects import scene_effects
+from .film import Film, RenderResult
+from .pathtracer import PreparedScene, choose_integrator, prepare
+from .sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+
+__all__ = ["DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
+           "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result"]
+
+#: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2)
+DIMS_PER_BOUNCE = 6
+#: Rec. 709 / sRGB luminance weights of linear RGB
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+#: Kelemen's small-step range: offsets between S1 and S2, exponentially distributed
+S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
+_TMAX_CAP = 3e38
+_BOOT_CHUNK = 1 << 15
+_IMPORTANCE_BINS = np.array([0.1, 1.0, 10.0, 100.0])  # I / b bin edges of the acceptance statistics
+
+
+def primary_dims(max_depth: int) -> int:
+    """Number D of primary-sample columns :func:`sample_paths` reads for ``max_depth``."""
+    return 2 + DIMS_PER_BOUNCE * int(max_depth)
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """(N,) Rec. 709 luminance of (N, 3) linear RGB."""
+    return rgb @ LUMINANCE
+
+
+# ---------------------------------------------------------------- the primary-sample path sampler
+def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
+                 heuristic: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)).
+
+    Returns ((N,) int64 row-major pixel index, (N, 3) float64 radiance contribution f(U)):
+    with U uniform, W H f(U) 1{pixel = p} is an unbiased estimate of pixel p's box-filtered
+    radiance (render.pathtracer's measurement). heuristic: MIS exponent (2 power, 1 balance).
+    See the module docstring for the column layout and conventions.
+    """
+    U = np.asarray(U, dtype=np.float64)
+    if U.ndim != 2 or U.shape[1] < primary_dims(max_depth):
+        raise ValueError(f"pssmlt: U must be (N, >= {primary_dims(max_depth)}), got {U.shape}")
+    geom, mats, lights, accel = ps.geom, ps.mats, ps.lights, ps.accel
+    k = camera.intrinsics
+    n = len(U)
+    x, y = U[:, 0] * k.width, U[:, 1] * k.height
+    pix = np.minimum(y.astype(np.int64), k.height - 1) * k.width + np.minimum(x.astype(np.int64), k.width - 1)
+    L = np.zeros((n, 3))
+    if n == 0:
+        return pix, L
+    o, d = camera.pixel_rays(np.stack([x, y], axis=1))
+    extent = geom.extent
+    bg = ps.background
+    has_bg = bool(bg.max() > 0)
+    can_nee = not lights.empty
+    mis_on_hits = lights.has_area
+    idx = np.arange(n)
+    beta = np.ones((n, 3))
+    pdf_prev = np.zeros(n)
+    delta_prev = np.ones(n, bool)  # the camera ray counts as specular: emission seen directly has weight 1
+    after_diff = np.zeros(n, bool)
+    for depth in range(max_depth + 1):
+        if len(idx) == 0:
+            break
+        h = accel.intersect(o, d)
+        hit = h.tri >= 0
+        pruned = (delta_prev & after_diff) if not caustics else np.zeros(len(idx), bool)
+        if has_bg:
+            esc = ~hit & ~pruned
+            L[idx[esc]] += beta[esc] * bg  # one live path per row: indices are unique
+        s = np.nonzero(hit)[0]
+        idx, beta, pdf_prev, delta_prev, after_diff, pruned = (idx[s], beta[s], pdf_prev[s], delta_prev[s],
+                                                               after_diff[s], pruned[s])
+        d, tri, t, hu, hv = d[s], h.tri[s], h.t[s], h.u[s], h.v[s]
+        p, ng = geom.point_normal(tri, hu, hv)
+        obj = geom.obj[tri]
+        kind = mats.kind[obj]
+        cos_o = -dot3(d, ng)
+        # ---- emission found by the ray (MIS against light sampling unless the previous vertex was delta)
+        em = mats.emits[obj] & (mats.two_sided[obj] | (cos_o > 0)) & ~pruned
+        if em.any():
+            e = np.nonzero(em)[0]
+            w = np.ones(len(e))
+            nd = ~delta_prev[e]
+            if mis_on_hits and nd.any():
+                en = e[nd]
+                w[nd] = mis_weight(pdf_prev[en], lights.pdf_hit(tri[en], t[en], cos_o[en]), heuristic)
+            L[idx[e]] += beta[e] * mats.Le[obj[e]] * w[:, None]
+        if depth == max_depth:
+            break
+        s = np.nonzero(kind != EMISSIVE)[0]
+        if len(s) == 0:
+            break
+        idx, beta, after_diff = idx[s], beta[s], after_diff[s]
+        d, tri, hu, hv, p, ng, obj, kind, cos_o = d[s], tri[s], hu[s], hv[s], p[s], ng[s], obj[s], kind[s], cos_o[s]
+        # shading normal: facing wo for two-sided materials, the outward normal for dielectrics
+        nrm = np.where(((cos_o < 0) & (kind != DIELECTRIC))[:, None], -ng, ng)
+        base = 2 + DIMS_PER_BOUNCE * depth
+        cols = U[idx, base:base + DIMS_PER_BOUNCE]
+        lam = kind == LAMBERT
+        alb = mats.albedo[obj]
+        if lam.any() and mats.textures:
+            li = np.nonzero(lam)[0]
+            alb[li] = mats.diffuse_albedo(obj[li], lambda m: geom.texcoords(tri[li][m], hu[li][m], hv[li][m]))
+        # ---- next-event estimation at Lambertian vertices
+        li = np.nonzero(lam)[0]
+        if can_nee and len(li):
+            ls = lights.sample(p[li], cols[li, 0], cols[li, 1:3])
+            cos_i = dot3(ls.wi, nrm[li])
+            ok = ls.valid & (cos_i > 0)
+            if ok.any():
+                j = np.nonzero(ok)[0]
+                v = li[j]
+                wi = ls.wi[j]
+                w = np.where(ls.delta[j], 1.0, mis_weight(ls.pdf[j], cos_i[j] * INV_PI, heuristic))
+                eps = offset_eps(p[v], extent)
+                side = np.where(dot3(wi, ng[v]) >= 0.0, eps, -eps)
+                tmax = np.minimum(np.maximum(ls.dist[j] * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
+                vis = ~accel.occluded(p[v] + side[:, None] * ng[v], wi, tmax)
+                scale = INV_PI * cos_i[j] * w / ls.pdf[j] * vis
+                L[idx[v]] += beta[v] * alb[v] * ls.Li[j] * scale[:, None]
+        # ---- continue: sample the BSDF (Lambert: cosine; mirror; glass: Fresnel lobe choice)
+        t1, t2 = orthonormal_frame(nrm)
+        wo = to_local(-d, t1, t2, nrm)
+        bs = bsdf_sample(kind, alb, mats.ior[obj], wo, cols[:, 3], cols[:, 4:6])
+        beta = beta * bs.weight
+        ok = bs.valid & (max3(beta) > 0)
+        s = np.nonzero(ok)[0]
+        wi = to_world(bs.wi[s], t1[s], t2[s], nrm[s])
+        o = spawn_origin(p[s], ng[s], wi, extent)
+        d = wi
+        idx, beta = idx[s], beta[s]
+        pdf_prev, delta_prev = bs.pdf[s], bs.delta[s]
+        after_diff = after_diff[s] | lam[s]
+    return pix, L
+
+
+# ---------------------------------------------------------------- mutations and the bootstrap
+def small_step(U: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Kelemen's small step: every coordinate of U (N, D) moved by +-S2 exp(-ln(S2 / S1) xi),
+    xi uniform, random sign, wrapped into [0, 1). A symmetric proposal. Returns a new array."""
+    xi = rng.random(U.shape)
+    sign = np.where(rng.random(U.shape) < 0.5, -1.0, 1.0)
+    v = np.mod(U + sign * (S2 * np.exp(-np.log(S2 / S1) * xi)), 1.0)
+    v[v >= 1.0] = 0.0  # mod of a tiny negative number rounds to 1.0
+    return v
+
+
+def _evaluate(ps, camera, U, max_depth, caustics, heuristic):
+    """sample_paths plus the importance, with non-finite contributions zeroed (and counted)."""
+    pix, f = sample_paths(ps, camera, U, max_depth, caustics, heuristic)
+    bad = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0)
+    if bad.any():
+        f[bad] = 0.0
+    return pix, f, luminance(f), int(bad.sum())
+
+
+def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: int = 0, group: int = 0,
+              caustics: bool = True, heuristic: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """The bootstrap of one group: n uniform primary samples (the counter-based hash of
+    render.sampling keyed by (seed, group, index)). Returns ((n,) uint64 keys, (n,) float64
+    importance I). b = I.mean() estimates E_U[I] = the mean image luminance; row i's sample is
+    ``uniform_block(keys[i:i+1], 0, primary_dims(max_depth))``."""
+    D = primary_dims(max_depth)
+    keys = path_keys(seed, np.full(n, group, np.int64), np.arange(n))
+    imp = np.zeros(n)
+    for c in range(0, n, _BOOT_CHUNK):
+        kk = keys[c:c + _BOOT_CHUNK]
+        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_block(kk, 0, D), max_depth, caustics, heuristic)[2]
+    return keys, imp
+
+
+# ---------------------------------------------------------------- the integrator
+@dataclass
+class PSSMLTResult:
+    """A PSSMLT render.
+
+    mean: (H, W, 3) float64 radiance estimate (mean of the group images). variance: (H, W, 3)
+    float64 variance of that mean (sample variance of the K group images / K). groups: (K, H, W, 3)
+    float64 the group images. b: (K,) float64 each group's bootstrap normalisation (mean
+    luminance); b_mean their mean. found_light: False when no bootstrap sample carried light (the
+    image is black). chains, steps, mutations (= chains x steps), bootstrap (samples over all
+    groups), large_step: what was run. acceptance: accepted / proposed over all steps;
+    acceptance_small, acceptance_large: per kind of step. acceptance_by_importance: list of
+    (I / b lower edge, proposals, acceptance rate) of the current state's importance bins
+    (edges 0, 0.1, 1, 10, 100). longest_rejection_run: the most consecutive rejections of any
+    chain; stuck_fraction: fraction of the running chains whose state never changed. stats: time_s, paths,
+    nonfinite (contributions zeroed).
+    """
+
+    mean: np.ndarray
+    variance: np.ndarray
+    groups: np.ndarray
+    b: np.ndarray
+    b_mean: float
+    found_light: bool
+    chains: int
+    steps: int
+    mutations: int
+    bootstrap: int
+    large_step: float
+    acceptance: float
+    acceptance_small: float
+    acceptance_large: float
+    acceptance_by_importance: list = field(default_factory=list)
+    longest_rejection_run: int = 0
+    stuck_fraction: float = 0.0
+    stats: dict = field(default_factory=dict)
+
+
+def _check_supported(scene, ps: PreparedScene, effects) -> None:
+    if getattr(scene, "media", None):
+        raise ValueError("integrator 'pssmlt' cannot reach effect 'media' (participating media); use 'volpath'")
+    if ps.mats.has_glossy:
+        raise ValueError("integrator 'pssmlt' cannot shade glossy (GGX) materials; use 'volpath'")
+    choose_integrator(effects, "pssmlt", ps.has_delta_lights, ps.mats.has_glossy)  # caustics from delta lights
+
+
+def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,
+                  prepared: PreparedScene | None = None, chains: int = 4096, large_step: float = 0.3,
+                  n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: float = 2.0) -> PSSMLTResult:
+    """Render ``camera``'s view of ``scene`` by primary-sample-space Metropolis light transport.
+
+    spp: mutations per pixel on average (spp x W x H proposals in all, rounded up to a whole
+    number of steps of all chains). max_depth: maximum scattering events. chains: Markov chains
+    advanced together (split into ``groups`` independent groups, K >= 8; rounded down to a
+    multiple of K, at most the number of mutations). large_step: probability p_large of a large
+    step (0 <= p_large <= 1). n_bootstrap: uniform samples estimating b, over all groups (each
+    group gets n_bootstrap / K). effects: effects to simulate (default scene_effects(scene));
+    without 'caustics', caustic paths are dropped as in render.pathtracer. heuristic: MIS
+    exponent (2 power, 1 balance). Returns a :class:`PSSMLTResult`.
+    """
+    t0 = time.perf_counter()
+    spp, max_depth, groups = int(spp), int(max_depth), int(groups)
+    if spp < 1 or max_depth < 0:
+        raise ValueError(f"pssmlt: spp must be >= 1 and max_depth >= 0, got {spp}, {max_depth}")
+    if groups < 8:
+        raise ValueError(f"pssmlt: groups must be >= 8 (the variance image needs them), got {groups}")
+    if not 0.0 <= large_step <= 1.0:
+        raise ValueError(f"pssmlt: large_step must lie in [0, 1], got {large_step}")
+    if int(n_bootstrap) < groups:
+        raise ValueError(f"pssmlt: n_bootstrap must be >= groups ({groups}), got {n_bootstrap}")
+    eff = scene_effects(scene) if effects is None else frozenset(effects)
+    ps = prepared if prepared is not None else prepare(scene)
+    _check_supported(scene, ps, eff)
+    caustics = "caustics" in eff
+    k = camera.intrinsics
+    npix = k.width * k.height
+    D = primary_dims(max_depth)
+    total = spp * npix
+    cpg = max(1, min(int(chains), total) // groups)  # chains per group
+    C = cpg * groups
+    steps = -(-total // C)
+    nb = int(n_bootstrap) // groups
+    seed = int(seed)
+    nonfinite = 0
+
+    # ---- bootstrap per group: b_g and the chains' starting states (resampled in proportion to I)
+    rng_sel = np.random.default_rng([seed & 0xFFFFFFFF, 0x5053, 1])
+    b = np.zeros(groups)
+    start_keys = np.zeros(C, np.uint64)
+    for g in range(groups):
+        keys, imp = bootstrap(ps, camera, nb, max_depth, seed, g, caustics, heuristic)
+        b[g] = imp.mean()
+        u_sel = rng_sel.random(cpg)
+        if b[g] > 0:
+            cdf = np.cumsum(imp)
+            j = np.minimum(np.searchsorted(cdf, u_sel * cdf[-1], side="right"), nb - 1)
+            start_keys[g * cpg:(g + 1) * cpg] = keys[j]
+    group_of = np.repeat(np.arange(groups), cpg)
+    acc = np.zeros((groups * npix, 3))
+    n_prop = n_acc = n_large = n_acc_large = 0
+    bins_prop = np.zeros(len(_IMPORTANCE_BINS) + 1)
+    bins_acc = np.zeros(len(_IMPORTANCE_BINS) + 1)
+    longest = 0
+    stuck = 1.0
+    live = np.nonzero(b[group_of] > 0)[0]  # a group whose bootstrap found no light runs no chain
+    found = len(live) > 0
+    if found:
+        X = uniform_block(start_keys[live], 0, D)
+        pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic)
+        nonfinite += bad
+        ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
+        live, X, pix_x, f_x, I_x = live[ok], X[ok], pix_x[ok], f_x[ok], I_x[ok]
+        bc = b[group_of[live]]
+        slot_base = group_of[live] * npix
+        nc = len(live)
+        run = np.zeros(nc, np.int64)
+        mv = np.zeros(nc, bool)
+        rng = np.random.default_rng([seed & 0xFFFFFFFF, 0x5053, 2])
+        for _ in range(steps):
+            large = rng.random(nc) < large_step
+            Y = small_step(X, rng)
+            nl = int(large.sum())
+            if nl:
+                Y[large] = rng.random((nl, D))
+            pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic)
+            nonfinite += bad
+            a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
+            # Kelemen's estimator: expected-value splats, balance heuristic with the large steps
+            den_y = I_y / bc + large_step
+            w_y = np.where(den_y > 0, (a + large) / np.where(den_y > 0, den_y, 1.0), 0.0)
+            w_x = (1.0 - a) / (I_x / bc + large_step)
+            slots = np.concatenate([slot_base + pix_y, slot_base + pix_x])
+            vals = np.concatenate([f_y * w_y[:, None], f_x * w_x[:, None]])
+            for c in range(3):
+                acc[:, c] += np.bincount(slots, weights=vals[:, c], minlength=groups * npix)
+            accept = rng.random(nc) < a
+            bi = np.searchsorted(_IMPORTANCE_BINS, I_x / bc, side="right")
+            bins_prop += np.bincount(bi, minlength=len(bins_prop))
+            bins_acc += np.bincount(bi, weights=accept, minlength=len(bins_prop))
+            n_prop += nc
+            n_acc += int(accept.sum())
+            n_large += nl
+            n_acc_large += int((accept & large).sum())
+            run = np.where(accept, 0, run + 1)
+            longest = max(longest, int(run.max()))
+            mv |= accept
+            s = np.nonzero(accept)[0]
+            X[s], pix_x[s], f_x[s], I_x[s] = Y[s], pix_y[s], f_y[s], I_y[s]
+        stuck = float(1.0 - mv.mean()) if nc else 1.0
+    imgs = acc.reshape(groups, npix, 3) * (npix / float(cpg * steps))
+    mean = imgs.mean(axis=0)
+    var = imgs.var(axis=0, ddof=1) / groups
+    if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var))):
+        raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
+    h, w = k.height, k.width
+    n_small = n_prop - n_large
+    by_imp = [(float(lo), int(bins_prop[i]), float(bins_acc[i] / bins_prop[i]) if bins_prop[i] else float("nan"))
+              for i, lo in enumerate(np.concatenate([[0.0], _IMPORTANCE_BINS]))]
+    nboot = nb * groups
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(nboot + n_prop + C), "nonfinite": nonfinite,
+             "no_light": not found}
+    return PSSMLTResult(
+        mean.reshape(h, w, 3), var.reshape(h, w, 3), imgs.reshape(groups, h, w, 3), b, float(b.mean()), found,
+        C, steps, C * steps, nboot, float(large_step),
+        n_acc / n_prop if n_prop else 0.0,
+        (n_acc - n_acc_large) / n_small if n_small else 0.0,
+        n_acc_large / n_large if n_large else 0.0,
+        by_imp, longest, stuck, stats)
+
+
+def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None) -> RenderResult:
+    """:func:`render_pssmlt` as a :class:`render.film.RenderResult` (what render.pathtracer.render
+    returns for integrator 'pssmlt'): spp = mutations per pixel, settings.max_depth, .seed and
+    .heuristic; other parameters at their defaults.
+
+    The film holds the K group images as K samples per pixel (s1 = sum, s2 = sum of squares,
+    n = K), so its mean and variance are the render's. sample_range must start at 0: the
+    mutations are a Markov chain, so pssmlt renders of disjoint ranges do not merge and
+    refine() is not supported."""
+    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    if a != 0 or b < 1:
+        raise ValueError(f"integrator 'pssmlt' is a Markov chain: its mutations cannot be split or refined "
+                         f"(sample_range must be (0, spp), got {(a, b)})")
+    eff = scene_effects(scene) if effects is None else frozenset(effects)
+    res = render_pssmlt(scene, camera, b, max_depth=settings.max_depth, seed=settings.seed, prepared=prepared,
+                        effects=eff, heuristic=2.0 if settings.heuristic == "power" else 1.0)
+    k = camera.intrinsics
+    K = res.groups.shape[0]
+    g = res.groups.reshape(K, -1, 3)
+    film = Film(k.width, k.height, g.sum(axis=0), (g * g).sum(axis=0), np.full(k.width * k.height, K, np.int64))
+    stats = dict(res.stats)
+    stats.update(b=res.b_mean, chains=res.chains, mutations=res.mutations, acceptance=res.acceptance,
+                 groups=K, found_light=res.found_light)
+    return RenderResult(res.mean.astype(np.float32), res.variance.astype(np.float32), b, (0, b), film, "pssmlt",
+                        stats)
