@@ -106,3 +106,30 @@ def assert_images_agree(a, b, alpha: float = 0.01, block: int = 1):
     assert gz < zcrit, f"image means differ: global z = {gz:.2f} >= {zcrit:.2f} (alpha {alpha})"
 
 
+
+
+def caustic_scene():
+    """scenes/glass_caustic.yaml built in code: glass ball (r 0.5, ior 1.5) over a floor of
+    albedo 0.6 under a 0.4 x 0.4 source of radiance 100 at z = 3; its camera at 64 x 64."""
+    from render.scene import Dielectric
+
+    ball = trimesh.creation.icosphere(3, 0.5)
+    ball.apply_translation([0, 0, 0.8])
+    sc = Scene("glass_caustic", [SceneObject("floor", quad((0, 0, 0), 3, 3), Lambertian(0.6)),
+                                 SceneObject("ball", ball, Dielectric(1.5)),
+                                 SceneObject("light", quad((0, 0, 3.0), 0.2, 0.2, normal_sign=-1.0),
+                                             Emissive(np.full(3, 100.0)))])
+    cam = Camera(Intrinsics.from_fov(64, 64, 45.0),
+                 look_at(np.array([0, -3.2, 2.2]), np.array([0, 0, 0.4]), np.array([0.0, 0.0, 1.0])), "c")
+    return sc, cam
+
+
+def caustic_region(ps, cam: Camera, radius: float = 0.3) -> np.ndarray:
+    """(H, W) bool: pixels whose first hit is the floor (object 0) within ``radius`` of the spot
+    under the ball (the caustic of :func:`caustic_scene`)."""
+    o, d = cam.pixel_rays()
+    h = ps.accel.intersect(o, d)
+    p = o + np.where(np.isfinite(h.t), h.t, 0.0)[:, None] * d
+    k = cam.intrinsics
+    return ((h.tri >= 0) & (ps.geom.obj[np.maximum(h.tri, 0)] == 0)
+            & (np.hypot(p[:, 0], p[:, 1]) < radius)).reshape(k.height, k.width)

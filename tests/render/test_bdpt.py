@@ -26,7 +26,8 @@ import pytest
 import trimesh
 from scipy import stats
 
-from ptutil import _blocks, assert_images_agree, compare_images, image_mean_and_se, quad, receiver_box
+from ptutil import (_blocks, assert_images_agree, caustic_region, caustic_scene, compare_images, image_mean_and_se, quad,
+                    receiver_box)
 from render.bdpt import render_bdpt
 from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
@@ -36,7 +37,6 @@ from render.pathtracer import RenderSettings, choose_integrator, prepare, refine
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, Medium, Mirror, PointLight, Scene, SceneObject
 from render.sppm import render_sppm
-from test_sppm import _caustic_scene
 
 UP = np.array([0.0, 0.0, 1.0])
 RHO = np.array([0.5, 0.5, 0.5])
@@ -228,7 +228,7 @@ def test_mirror_caustic_closed_form_and_pruning():
 
 
 def test_glass_caustic_region_agrees_with_path():
-    """scenes/glass_caustic.yaml's caustic (test_sppm._caustic_scene): the floor pixels within
+    """scenes/glass_caustic.yaml's caustic (ptutil.caustic_scene): the floor pixels within
     0.3 m of the spot under the ball (66 pixels of the 64 x 64 view), rendered through a 16 x 12
     crop of the camera holding them (the same pixels' measurements). bdpt (4096 passes, seed 34)
     against `path` at 8192 spp (seed 5): per pixel of the crop (alpha 0.01, Sidak, both
@@ -237,13 +237,9 @@ def test_glass_caustic_region_agrees_with_path():
     Measured: all channels pass (global z 0.6); region means 1.314 (bdpt) and 1.331 (path),
     -1.3%, z 0.9 (standard errors 1.1% and 0.9%). The whole 64 x 64 view at 16 passes (about a
     second) is finite and lit in the region."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     ps = prepare(sc)
-    o, d = cam.pixel_rays()
-    h = ps.accel.intersect(o, d)
-    p = o + np.where(np.isfinite(h.t), h.t, 0.0)[:, None] * d
-    region = ((h.tri >= 0) & (ps.geom.obj[np.maximum(h.tri, 0)] == 0)
-              & (np.hypot(p[:, 0], p[:, 1]) < 0.3)).reshape(64, 64)
+    region = caustic_region(ps, cam)
     rows, cols = np.nonzero(region)
     assert region.sum() > 40 and rows.min() >= 36 and rows.max() < 48 and cols.min() >= 24 and cols.max() < 40
     crop = _crop(cam, 24, 36, 16, 12)
@@ -339,7 +335,7 @@ def test_hard_case_point_light_caustic_through_glass():
     (32 passes x 1e5 photons, seed 37) is above 1% of its peak (35 pixels), and the crop means
     agree within 20% (sppm is consistent, not unbiased: its radius blurs a spot a few pixels
     wide). Measured: bdpt 0.619 (1024 passes, seed 36, standard error 2.2%), sppm 0.600: +3%."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     pt = Scene("pt", list(sc.objects[:2]), lights=[PointLight([0, 0, 3.0], [20.0, 20.0, 20.0])])
     with pytest.raises(ValueError, match="caustics"):
         render(pt, cam, RenderSettings(integrator="path", spp=1))
@@ -403,7 +399,7 @@ def test_hard_case_camera_inside_an_object():
 
 # ------------------------------------------------------------------ unsupported, wiring, determinism
 def test_unsupported_raise_naming_bdpt():
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     small = Camera(Intrinsics.from_fov(4, 4, 45.0), cam.cam_to_world, "s")
     fog = Scene("fog", list(sc.objects), media=[Medium(trimesh.creation.box([6.0, 6.0, 2.9]), sigma_s=0.1)])
     with pytest.raises(ValueError, match="bdpt"):
@@ -429,7 +425,7 @@ def test_determinism_and_sample_ranges_merge():
     """Same seed, same bytes; another seed differs; passes [0, 2) + [2, 6) merged (or refined)
     equal the render of [0, 6) (film sums to 1e-12 relative: only summation order differs),
     whatever the batch size; a large image split over pixel batches is finite."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(8, 8, 45.0), cam.cam_to_world, "tiny")
     ps = prepare(sc)
     st = RenderSettings(integrator="bdpt", spp=6, seed=42)

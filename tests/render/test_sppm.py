@@ -11,13 +11,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from ptutil import probe_camera, quad, receiver_box
+from ptutil import caustic_region, caustic_scene, probe_camera, quad, receiver_box
 from render.accel import Accel
 from render.camera import Camera, Intrinsics
 from render.microfacet import RoughConductor
 from render.pathtracer import RenderSettings, choose_integrator, prepare, refine, render
-from render.poses import look_at
-from render.scene import Dielectric, Emissive, Lambertian, Medium, Mirror, PointLight, Scene, SceneObject
+from render.scene import Emissive, Medium, Mirror, PointLight, Scene, SceneObject
 from render.sppm import render_sppm
 from test_pathtracer_closed_forms import polygon_irradiance
 
@@ -74,19 +73,6 @@ def test_photon_closed_form_mirror_image_caustic():
 
 
 # ------------------------------------------------------------------ the glass caustic
-def _caustic_scene():
-    """scenes/glass_caustic.yaml built in code: glass ball (r 0.5, ior 1.5) over a floor of
-    albedo 0.6 under a 0.4 x 0.4 source of radiance 100 at z = 3; its camera at 64 x 64."""
-    ball = trimesh.creation.icosphere(3, 0.5)
-    ball.apply_translation([0, 0, 0.8])
-    sc = Scene("glass_caustic", [SceneObject("floor", quad((0, 0, 0), 3, 3), Lambertian(0.6)),
-                                 SceneObject("ball", ball, Dielectric(1.5)),
-                                 SceneObject("light", quad((0, 0, 3.0), 0.2, 0.2, normal_sign=-1.0),
-                                             Emissive(np.full(3, 100.0)))])
-    cam = Camera(Intrinsics.from_fov(64, 64, 45.0), look_at(np.array([0, -3.2, 2.2]), np.array([0, 0, 0.4]), UP), "c")
-    return sc, cam
-
-
 def test_caustic_agrees_with_path_and_bias_falls_with_passes():
     """The caustic region (floor pixels within 0.3 m of the spot under the ball, 66 pixels):
     sppm's mean after 48 passes agrees with a 8192-spp `path` render within 5%, and its
@@ -100,13 +86,9 @@ def test_caustic_agrees_with_path_and_bias_falls_with_passes():
     ball the (eta_i / eta_t)^2 factors cancel.) The RMSE
     drop measured over 4 seeds: 0.73-0.91 at 2 passes, 0.40-0.50 at 16 (it is blur bias: the
     4-seed average image has the same RMSE), reference noise ~7% per pixel."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     ps = prepare(sc)
-    o, d = cam.pixel_rays()
-    h = ps.accel.intersect(o, d)
-    p = o + np.where(np.isfinite(h.t), h.t, 0.0)[:, None] * d
-    region = ((h.tri >= 0) & (ps.geom.obj[np.maximum(h.tri, 0)] == 0)
-              & (np.hypot(p[:, 0], p[:, 1]) < 0.3)).reshape(64, 64)
+    region = caustic_region(ps, cam)
     assert region.sum() > 40
     ref = render(sc, cam, RenderSettings(integrator="path", spp=8192, seed=5), prepared=ps)
     R = ref.mean.astype(np.float64)[region][:, 0]
@@ -130,7 +112,7 @@ def test_hard_case_photon_radius_shrinking_towards_zero():
     the pass count, bounds the collapse): per pixel they never increase from pass to pass, stay
     > 0 and the image stays finite and non-negative. An initial radius below the floor (1e-9 x extent) is clamped, never 0 (no
     0 / 0 where no photon was found)."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(16, 16, 45.0), cam.cam_to_world, "small")
     ps = prepare(sc)
     radii, finite = [], []
@@ -152,7 +134,7 @@ def test_hard_case_photon_radius_shrinking_towards_zero():
 
 # ------------------------------------------------------------------ wiring and unsupported effects
 def test_unsupported_effects_raise_naming_sppm():
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     fog = Scene("fog", list(sc.objects), media=[Medium(trimesh.creation.box([6.0, 6.0, 2.9]), sigma_s=0.1)])
     with pytest.raises(ValueError, match="sppm"):
         render(fog, cam, RenderSettings(integrator="sppm", spp=1, photons_per_pass=10))
@@ -171,7 +153,7 @@ def test_render_wiring_determinism_and_auto():
     """integrator='sppm' through render(): a finite image with a zero variance image, spp =
     passes; deterministic for a seed; refine (split passes) is refused; auto never picks sppm;
     point-light caustics, unreachable by path, are accepted by sppm."""
-    sc, cam = _caustic_scene()
+    sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(8, 8, 45.0), cam.cam_to_world, "tiny")
     ps = prepare(sc)
     st = RenderSettings(integrator="sppm", spp=3, photons_per_pass=5_000, seed=11)
