@@ -78,7 +78,7 @@ class StudyConfig:
     poses: tuple[tuple[str, float], ...] = (("gt", 1.0), ("charuco", 1.0), ("colmap", 1.0))
     slab_grid: tuple[tuple[int, int], ...] = ((4, 48), (8, 96))
     rebin_grid: tuple[int, int] = (4, 48)
-    nerf: tuple[tuple[str, float], ...] = ()
+    nerf: tuple[tuple[str, float], ...] = (("fast", 0.5), ("fast", 1.5))
 
     def __post_init__(self):
         if not 0 < self.size_scale <= 4:

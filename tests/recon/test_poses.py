@@ -343,7 +343,7 @@ def test_a_failed_run_replaces_a_finished_folder(small_capture, textureless_capt
 @pytest.mark.parametrize("damage,word", [
     ("missing_image", "image missing"), ("unreadable_image", "unreadable image"),
     ("mixed_sizes", "mixed image sizes"), ("no_cameras", "no camera file"), ("bad_cameras", "cameras.json")])
-def test_bad_capture_is_one_line_naming_the_problem_and_writes_nothing(small_capture, tmp_path, damage, word):
+def test_bad_capture_is_one_line_naming_the_problem_and_writes_nothing(small_capture, tmp_path, capsys, damage, word):
     cap = copy_capture(small_capture, tmp_path / "capture")
     victim = cap / "images" / "train_003.png"
     if damage == "missing_image":
@@ -362,6 +362,12 @@ def test_bad_capture_is_one_line_naming_the_problem_and_writes_nothing(small_cap
     msg = one_line(exc)
     assert word in msg
     assert ("train_003.png" in msg) == damage.endswith(("image", "sizes"))
+    assert not out.exists() and not leftovers(out)
+    from pipeline.cli import main  # the verb: exit 2 and the same single line on stderr
+    capsys.readouterr()
+    assert main(["poses", str(cap), "--method", "gt", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and word in err[0], err
     assert not out.exists() and not leftovers(out)
 
 
