@@ -306,8 +306,8 @@ def main() -> dict:
     figures["bytes"] = _task_bytes(rig)
     figures["load_average_before"] = load_before
     figures["load_average_after"] = _load()
-    figures["note"] = ("shared 2-core machine under load from colleagues' test runs: absolute times are "
-                       "inflated and noisy; ratios were measured in the same run")
+    figures["note"] = ("2-core machine; the load averages before and after say how busy it was (above ~2, "
+                       "absolute times are inflated); ratios were measured in the same run")
     write_result("distributed", figures)
     return figures
 
