@@ -77,11 +77,13 @@ def _pid_alive(pid: int) -> bool:
 
 
 def _remove_orphans(final: Path) -> None:
-    """Delete partial folders of ``final`` left by processes that no longer run."""
-    for folder in final.parent.glob(f".{final.name}.partial-*"):
-        pid = folder.name.rsplit(".partial-", 1)[1].split("-", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
-            shutil.rmtree(folder, ignore_errors=True)
+    """Delete partial folders of ``final`` (and replaced ones, ``.old-<pid>``, of a run killed
+    between its two renames) left by processes that no longer run."""
+    for kind in (".partial-", ".old-"):
+        for folder in final.parent.glob(f".{final.name}{kind}*"):
+            pid = folder.name.rsplit(kind, 1)[1].split("-", 1)[0]
+            if pid.isdigit() and int(pid) != os.getpid() and not _pid_alive(int(pid)):
+                shutil.rmtree(folder, ignore_errors=True)
 
 
 @contextmanager

@@ -1,6 +1,7 @@
 """The CLI contract: bad input exits 2 with one line and writes nothing; captures are atomic,
 deterministic, and readable by `inspect`."""
 import copy
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -209,3 +210,22 @@ def test_inspect_shows_the_folder_and_flags_changed_files(tiny_capture, tmp_path
     (copy_dir / "images" / "train_000.png").write_bytes(b"not a png")
     assert main(["inspect", str(copy_dir), "--no-sheet"]) == 0
     assert "1 changed" in capsys.readouterr().out
+
+
+def test_leftovers_of_dead_runs_are_removed_by_the_next_run(tmp_path):
+    """A run killed mid-stage leaves `.<stage>.partial-<pid>-*`; one killed between its two renames
+    leaves `.<stage>.old-<pid>`. The next run of the stage removes both once that process is gone,
+    and keeps those of a live process."""
+    from pipeline.artifacts import atomic_stage
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    final = tmp_path / "slab"
+    stale = [tmp_path / f".slab.partial-{dead.pid}-x1", tmp_path / f".slab.old-{dead.pid}"]
+    alive = tmp_path / f".slab.old-{os.getppid()}"
+    for folder in stale + [alive]:
+        (folder / "sub").mkdir(parents=True)
+    with atomic_stage(final) as tmp:
+        (tmp / "done.txt").write_text("ok")
+    assert (final / "done.txt").read_text() == "ok"
+    assert not any(f.exists() for f in stale) and alive.exists()
