@@ -55,7 +55,7 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               spp: int = typer.Option(64, help="samples per pixel"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
               views: str = typer.Option("test", help="test (held-out views) | all | scene (the scene's own camera)"),
-              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath"),
+              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),

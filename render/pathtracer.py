@@ -37,6 +37,12 @@ Integrators (Heckbert's notation; see render.effects):
   variance image is zero (no unbiased per-pixel variance exists) and its passes cannot be split
   into sample ranges or refined. Reaches caustics from point, spot and directional lights too.
   Never chosen by ``auto``; no media, no GGX materials.
+* ``bdpt`` (:mod:`render.bdpt`, numpy): bidirectional path tracing with every (s, t) strategy
+  (light tracing to the camera included), power-heuristic MIS; ``auto`` picks it for caustics
+  from point, spot and directional lights. No media, no GGX materials.
+* ``pssmlt`` (:mod:`render.pssmlt`, numpy): Metropolis light transport in primary sample space
+  over a path sampler; ``spp`` is mutations per pixel; its variance comes from independent
+  groups of chains. Never chosen by ``auto``; no media, no GGX materials.
 
 Conventions: radiometry and light units of :mod:`render.scene`; pixel centres at +0.5 and
 OpenCV camera axes of :mod:`render.camera`; scene.background is the radiance of every escaping
