@@ -30,7 +30,7 @@ from .data import load_data
 from .models import MODELS
 from .train import TrainConfig, train
 
-__all__ = ["Run", "parse_run", "run_study", "plot_curves", "PUBLIC_REFERENCE"]
+__all__ = ["Run", "parse_run", "parse_settings", "run_study", "plot_curves", "PUBLIC_REFERENCE"]
 
 #: the issue's scale: a public pure-PyTorch factored-grid NeRF on these 2 cores, 200x200 object
 PUBLIC_REFERENCE = [(2.0, 28.0), (5.0, 35.0), (10.0, 38.0)]
@@ -101,11 +101,46 @@ def plot_curves(path: Path, curves: dict[str, list[dict]], title: str, size=(900
         img.save(tmp, format="PNG")
 
 
+def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
+    """``FIELD=VALUE`` strings -> {model: overrides} for :class:`recon.nerf.train.TrainConfig`.
+    A field applies to every run whose model config has it (values are parsed as that field's
+    type); a field no run's model has is a ValueError naming it."""
+    per_model: dict[str, list] = {r.model: [] for r in runs}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep:
+            raise ValueError(f"--set {item!r}: expected FIELD=VALUE")
+        used = False
+        for model in per_model:
+            default = getattr(MODELS[model][1], name, _MISSING)
+            if default is _MISSING:
+                continue
+            if default is None or isinstance(default, int) and not isinstance(default, bool):
+                value = None if text.lower() == "none" else int(text)
+            elif isinstance(default, bool):
+                value = text.lower() in ("1", "true", "yes")
+            elif isinstance(default, float):
+                value = float(text)
+            else:
+                raise ValueError(f"--set {item!r}: field {name!r} of model {model!r} cannot be set from the command line")
+            per_model[model].append((name, value))
+            used = True
+        if not used:
+            raise ValueError(f"--set {item!r}: no run's model config has a field {name!r}")
+    return {m: tuple(v) for m, v in per_model.items()}
+
+
+_MISSING = object()
+
+
 def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=None, downsample: int | None = None,
-              seed: int = 0, eval_every_s: float = 30.0, log=print, clock: str = "wall") -> dict:
+              seed: int = 0, eval_every_s: float = 30.0, log=print, clock: str = "wall",
+              settings: dict[str, tuple] | None = None) -> dict:
     """Train every run for ``minutes`` of training time; write curves.csv, curves.png,
     summary.json into ``out``; return the summary {label: {model, poses, final_psnr, steps}}.
-    clock: "wall" or "cpu" (see :class:`recon.nerf.train.TrainConfig`)."""
+    clock: "wall" or "cpu" (see :class:`recon.nerf.train.TrainConfig`); settings: {model:
+    overrides of its config} (:func:`parse_settings`), recorded in summary.json."""
+    settings = settings or {}
     out = Path(out)
     curves, summary = {}, {}
     rows = []
@@ -113,10 +148,11 @@ def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=N
         data = load_data(capture_dir, run.poses, reference_dir, downsample)
         log(f"study: {run.label} ({run.model}, poses {data.poses}) for {minutes} min")
         res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s,
-                                      clock=clock))
+                                      clock=clock, overrides=settings.get(run.model, ())))
         curves[run.label] = res.curve
         summary[run.label] = {"model": run.model, "poses": data.poses, "final_psnr": res.curve[-1]["psnr"],
-                              "steps": res.steps, "train_s": round(res.train_s, 1)}
+                              "steps": res.steps, "train_s": round(res.train_s, 1),
+                              "settings": dict(settings.get(run.model, ()))}
         rows += [{"label": run.label, "model": run.model, "poses": str(run.poses or "gt"), **r} for r in res.curve]
         log(f"study: {run.label}: {res.curve[-1]['psnr']:.2f} dB after {res.steps} steps")
     out.mkdir(parents=True, exist_ok=True)
@@ -146,10 +182,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clock", default="wall", choices=["wall", "cpu"])
     ap.add_argument("--eval-every", type=float, default=30.0, help="training seconds between curve points")
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="override a model config field for every run whose model has it, e.g. batch_rays=256")
     a = ap.parse_args(argv)
     runs = [parse_run(r) for r in (a.run or ["fast", "vanilla", "vanilla_noview", "vanilla_nope"])]
     summary = run_study(a.capture_dir, runs, a.minutes, a.out, a.reference, a.downsample, a.seed,
-                        a.eval_every, clock=a.clock)
+                        a.eval_every, clock=a.clock, settings=parse_settings(a.set, runs))
     print(json.dumps(summary, indent=2))
     return 0
 

@@ -157,6 +157,8 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     model = make_model(cfg.model, data.lo, data.hi, cfg.seed, model_cfg)
     gen = torch.Generator().manual_seed(cfg.seed)
     o_all, d_all, c_all = stack_rays(data.train)
+    if hasattr(model, "init_colour"):
+        model.init_colour(c_all.mean(dim=0))  # a resumed run loads its own state below
     n_rays = o_all.shape[0]
     budget = cfg.minutes * 60.0
     step, train_s, curve = 0, 0.0, []
