@@ -3,19 +3,23 @@ the cost of pruning (effects drive the integrator; media code only runs with med
 
 Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured in one run:
 
-* caustic scene (glass ball on a diffuse floor under a small area light, 48 x 48): RMSE against
-  a long ``path`` reference for ``path`` (compiled kernels) and ``volpath`` (numpy) at
-  increasing spp, with wall times; the same on a fog scene (the floor and ball inside a
-  homogeneous scattering fog, ``volpath`` only: path cannot render media) against a long
-  ``volpath`` reference. ``sppm`` (render/sppm.py) on the caustic scene too, at passes chosen
-  so its wall times span path's (rows' ``spp`` = passes, SPPM_PHOTONS photons per pass): the
-  equal-time entry interpolates every integrator's RMSE (log-log) at the longest time all of
-  them reached. sppm takes one eye sample per pixel per pass, so its image RMSE here is
-  dominated by the edge pixels of the directly visible light (32 passes = 32 samples there
-  against path's thousands), not by the caustic. ``bdpt`` and ``pssmlt`` likewise, each at spp
-  chosen to span path's times; ``caustic_vs_path_at_equal_time`` divides each run's RMSE by
-  path's at the same wall time. The fog scene has only ``volpath``: bdpt, pssmlt and sppm do not
-  render media (docs/architecture.md). Plot: hard_paths_rmse_time.svg (log10 RMSE vs time).
+* caustic scenes (glass ball on a diffuse floor under a square area light at 3 m, 48 x 48):
+  ``caustic_small`` under the issue's small source (0.1 m, SMALL_SOURCE), against a long
+  ``bdpt`` reference, and ``caustic`` under scenes/glass_caustic.yaml's 0.4 m source, against a
+  long ``path`` reference (both sources emit the same power). Each of ``path`` (compiled
+  kernels), ``volpath``, ``bdpt``, ``pssmlt`` (numpy) and ``sppm`` (rows' ``spp`` = passes of
+  SPPM_PHOTONS photons) runs at spp chosen so its wall times span path's; ``<scene>_equal_time``
+  interpolates every integrator's RMSE (log-log) at the longest time all of them reached, and
+  ``<scene>_vs_path_at_equal_time`` divides each run's RMSE by path's at that run's own wall
+  time. ``<scene>_reference.noise_rmse`` is the reference's own noise, included in every RMSE.
+  The fog scene (the same floor and ball inside a homogeneous scattering fog) has ``volpath``
+  only: bdpt, pssmlt and sppm do not render media (docs/architecture.md). Plot:
+  hard_paths_rmse_time.svg (log10 RMSE vs time).
+* which strategy wins where (``source_size_sweep``): for sources of side 0.4, 0.2, 0.1 and
+  0.05 m at equal power, bdpt's and pssmlt's predicted RMSE at equal time over path's,
+  sqrt(t v / (t_path v_path)) from each render's own variance estimate. Path finds a caustic only
+  when a BSDF-sampled ray leaving the floor through the ball hits the source, so its variance
+  there grows as the source's solid angle shrinks; bdpt's light subpaths do not care.
 * pruning: median render time of the no-media scene with ``path`` (what auto picks), with
   ``volpath`` (what a scene with media would need), and with ``volpath`` given an empty medium
   (media code running for nothing): ratios show what each pruning saves.
@@ -44,14 +48,17 @@ def _quad(z, half, down=False):
     return trimesh.Trimesh(v, f, process=False)
 
 
-def caustic_scene(fog: float = 0.0) -> Scene:
-    """Glass ball (r 0.5) over a floor of albedo 0.6 under a 0.4 x 0.4 area light at z = 3;
-    fog > 0 fills a 6 x 6 x 2.9 box above the floor with sigma_s = fog (albedo 1, g 0.3)."""
+def caustic_scene(fog: float = 0.0, light_half: float = 0.2) -> Scene:
+    """Glass ball (r 0.5) over a floor of albedo 0.6 under a square area light at z = 3 of side
+    2 light_half and radiance 100 (0.2 / light_half)^2 (the same power at every size: 0.2 is
+    scenes/glass_caustic.yaml's 0.4 m source); fog > 0 fills a 6 x 6 x 2.9 box above the floor
+    with sigma_s = fog (albedo 1, g 0.3)."""
     ball = trimesh.creation.icosphere(3, 0.5)
     ball.apply_translation([0, 0, 0.8])
+    Le = 100.0 * (0.2 / light_half) ** 2
     objs = [SceneObject("floor", _quad(0.0, 3.0), Lambertian(0.6)),
             SceneObject("ball", ball, Dielectric(1.5)),
-            SceneObject("light", _quad(3.0, 0.2, down=True), Emissive(np.full(3, 100.0)))]
+            SceneObject("light", _quad(3.0, light_half, down=True), Emissive(np.full(3, Le)))]
     media = []
     if fog > 0:
         box = trimesh.creation.box([6.0, 6.0, 2.9])
@@ -101,27 +108,84 @@ def _plot(rows: list[dict], path) -> None:
             pts = sorted((r["time_s"], r["rmse"], r["spp"]) for r in rows
                          if r["scene"] == scene and r["integrator"] == integ)
             series.append(Series(f"{scene}: {integ}", [p[0] for p in pts], [float(np.log10(p[1])) for p in pts],
-                                 labels=[f"{integ} {p[2]}" for p in pts], line=True, dashed=scene != "caustic"))
+                                 labels=[f"{integ} {p[2]}" for p in pts], line=True, dashed=scene == "fog"))
     svg = svg_plot(series, "wall time (s)", "log10 RMSE vs long reference",
-                   "Hard light paths: RMSE against time (caustic: solid, fog: dashed)", logx=True)
+                   "Hard light paths: RMSE against time (caustics: solid, fog: dashed)", logx=True)
     path.write_text(svg)
+
+
+#: the issue's "small source": a 0.1 m square at 3 m (0.2: the yaml's 0.4 m source)
+SMALL_SOURCE = 0.05
+#: light half-sizes of the source-size sweep (same power at each size)
+SWEEP_HALVES = (0.2, 0.1, 0.05, 0.025)
+#: spp per integrator in the sweep (full, quick): predicted equal-time RMSE from variance x time
+SWEEP_SPP = {"path": (1024, 64), "bdpt": (64, 8), "pssmlt": (64, 8)}
+
+
+def _equal_time(rows: list[dict], scene: str) -> tuple[dict, list[dict]]:
+    """RMSE of every caustic integrator interpolated (log-log) at the longest time all reached,
+    and each run's RMSE over path's at that run's own wall time (path within its range)."""
+    cau = {i: [(r["time_s"], r["rmse"]) for r in rows if r["scene"] == scene and r["integrator"] == i]
+           for i in CAUSTIC_INTEGRATORS}
+    t_common = min(max(t for t, _ in v) for v in cau.values())
+    at = {i: _interp_loglog(v, t_common) if min(t for t, _ in v) <= t_common else None for i, v in cau.items()}
+    best = min((i for i in at if at[i] is not None), key=lambda i: at[i])
+    summary = {"time_s": t_common, "rmse": at, "best": best, "rmse_ratio_best_over_path": at[best] / at["path"],
+               **{f"rmse_ratio_{i}_over_path": (at[i] / at["path"] if at[i] else None)
+                  for i in CAUSTIC_INTEGRATORS if i != "path"},
+               "sppm_photons_per_pass": SPPM_PHOTONS}
+    t_path = [t for t, _ in cau["path"]]
+    per_run = [{"integrator": r["integrator"], "spp": r["spp"], "time_s": r["time_s"], "rmse": r["rmse"],
+                "rmse_path": _interp_loglog(cau["path"], r["time_s"]),
+                "rmse_ratio_over_path": r["rmse"] / _interp_loglog(cau["path"], r["time_s"])}
+               for r in rows if r["scene"] == scene and r["integrator"] != "path"
+               and min(t_path) <= r["time_s"] <= max(t_path)]
+    return summary, per_run
+
+
+def _source_sweep(cam: Camera, quick: bool) -> list[dict]:
+    """Which strategy wins where: per source size, each unbiased integrator's predicted RMSE at
+    equal time relative to path's, sqrt(t v / (t_path v_path)) with v the mean variance of the
+    pixel means (an estimator's own variance: no reference needed)."""
+    out = []
+    for half in SWEEP_HALVES:
+        sc = caustic_scene(light_half=half)
+        ps = prepare(sc)
+        cost = {}
+        for integ, (spp_full, spp_quick) in SWEEP_SPP.items():
+            ts = time.perf_counter()
+            r = render(sc, cam, RenderSettings(integrator=integ, spp=spp_quick if quick else spp_full, max_depth=8,
+                                               seed=7), prepared=ps)
+            dt = time.perf_counter() - ts
+            cost[integ] = (dt, float(np.mean(r.variance)), r.spp)
+        tp, vp, _ = cost["path"]
+        out.append({"light_side_m": 2 * half, "light_radiance": 100.0 * (0.2 / half) ** 2,
+                    **{f"{i}_time_s": round(c[0], 4) for i, c in cost.items()},
+                    **{f"{i}_spp": c[2] for i, c in cost.items()},
+                    **{f"{i}_mean_variance": c[1] for i, c in cost.items()},
+                    **{f"{i}_rmse_ratio_over_path_at_equal_time": float(np.sqrt(c[0] * c[1] / (tp * vp)))
+                       for i, c in cost.items() if i != "path"}})
+    return out
 
 
 def main(quick: bool = False) -> None:
     size = 24 if quick else 48
-    ref_spp = 256 if quick else 4096
-    caustic_ref_spp = 1024 if quick else 65536
     cam = camera(size)
     rows, figs = [], {}
     t0 = time.perf_counter()
-    for scene_name, sc, ref_integ, integs in (("caustic", caustic_scene(), "path", CAUSTIC_INTEGRATORS),
-                                              ("fog", caustic_scene(0.4), "volpath", ["volpath"])):
+    # (name, scene, reference integrator, reference spp, integrators compared)
+    setups = (("caustic_small", caustic_scene(light_half=SMALL_SOURCE), "bdpt", 256 if quick else 4096,
+               CAUSTIC_INTEGRATORS),
+              ("caustic", caustic_scene(), "path", 1024 if quick else 65536, CAUSTIC_INTEGRATORS),
+              ("fog", caustic_scene(0.4), "volpath", 256 if quick else 4096, ["volpath"]))
+    for scene_name, sc, ref_integ, rspp, integs in setups:
         ps = prepare(sc)
         ts = time.perf_counter()
-        rspp = caustic_ref_spp if scene_name == "caustic" else ref_spp
         ref = render(sc, cam, RenderSettings(integrator=ref_integ, spp=rspp, max_depth=8, seed=999), prepared=ps)
+        # the reference's own noise: every RMSE below includes it (in quadrature)
         figs[f"{scene_name}_reference"] = {"integrator": ref_integ, "spp": rspp,
-                                           "time_s": round(time.perf_counter() - ts, 2)}
+                                           "time_s": round(time.perf_counter() - ts, 2),
+                                           "noise_rmse": float(np.sqrt(np.mean(ref.variance)))}
         for integ in integs:
             for spp in SPP_LISTS[integ][0 if quick else 1]:
                 ts = time.perf_counter()
@@ -130,25 +194,9 @@ def main(quick: bool = False) -> None:
                 dt = time.perf_counter() - ts
                 rows.append({"scene": scene_name, "integrator": integ, "spp": spp, "time_s": round(dt, 4),
                              "rmse": _rmse(r.mean, ref.mean)})
-    # equal-time comparison on the caustic scene: RMSE interpolated in log-log at a common time
-    cau = {i: [(r["time_s"], r["rmse"]) for r in rows if r["scene"] == "caustic" and r["integrator"] == i]
-           for i in CAUSTIC_INTEGRATORS}
-    t_common = min(max(t for t, _ in v) for v in cau.values())
-    at = {i: _interp_loglog(v, t_common) if min(t for t, _ in v) <= t_common else None for i, v in cau.items()}
-    best = min((i for i in at if at[i] is not None), key=lambda i: at[i])
-    figs["caustic_equal_time"] = {"time_s": t_common, "rmse": at, "best": best,
-                                  "rmse_ratio_best_over_path": at[best] / at["path"],
-                                  **{f"rmse_ratio_{i}_over_path": (at[i] / at["path"] if at[i] else None)
-                                     for i in CAUSTIC_INTEGRATORS if i != "path"},
-                                  "sppm_photons_per_pass": SPPM_PHOTONS}
-    # every integrator against path at its own runs' wall times (path interpolated, within its range)
-    t_path = [t for t, _ in cau["path"]]
-    figs["caustic_vs_path_at_equal_time"] = [
-        {"integrator": r["integrator"], "spp": r["spp"], "time_s": r["time_s"], "rmse": r["rmse"],
-         "rmse_path": _interp_loglog(cau["path"], r["time_s"]),
-         "rmse_ratio_over_path": r["rmse"] / _interp_loglog(cau["path"], r["time_s"])}
-        for r in rows if r["scene"] == "caustic" and r["integrator"] != "path"
-        and min(t_path) <= r["time_s"] <= max(t_path)]
+    for scene_name in ("caustic_small", "caustic"):
+        figs[f"{scene_name}_equal_time"], figs[f"{scene_name}_vs_path_at_equal_time"] = _equal_time(rows, scene_name)
+    figs["source_size_sweep"] = _source_sweep(cam, quick)
     # pruning: no media -> path; volpath with no media; volpath with an empty (sigma 0) medium
     sc = caustic_scene()
     ps = prepare(sc)

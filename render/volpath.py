@@ -161,9 +161,13 @@ def shadow_transmittance(ctx: VolContext, p: np.ndarray, ng: np.ndarray | None, 
 # ---------------------------------------------------------------- the integrator
 def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: np.random.Generator,
           max_depth: int = 8, rr_depth: int = 3, roulette: bool = True, caustics: bool = True,
-          heuristic: float = 2.0) -> np.ndarray:
+          heuristic: float = 2.0, strategy: str = "mis") -> np.ndarray:
     """Radiance (N, 3) arriving along camera rays (origins o, unit directions d (N, 3)) that
-    start in media mid (N,) (-1: vacuum), by volumetric path tracing with NEE and MIS."""
+    start in media mid (N,) (-1: vacuum), by volumetric path tracing with NEE and MIS.
+    strategy: "mis", or one technique alone for area sources (as the compiled path kernels):
+    "light" (NEE only: emission reached by a BSDF or phase sample counts only after a delta
+    vertex) or "bsdf" (no NEE towards area sources; delta lights keep NEE, nothing else finds
+    them). All three are unbiased; Veach's MIS scene shows where each wins."""
     ps = ctx.ps
     mats, lights, geom = ps.mats, ps.lights, ps.geom
     ms = ctx.media
@@ -239,9 +243,12 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
             dist = np.linalg.norm(p[e] - last_p[si[e]], axis=1)
             w = np.ones(len(e))
             nd = ~delta_prev[si[e]]
-            if np.any(nd) and can_nee:
-                pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
-                w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, heuristic)
+            if np.any(nd) and can_nee and strategy != "bsdf":
+                if strategy == "light":
+                    w[nd] = 0.0
+                else:
+                    pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
+                    w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, heuristic)
             np.add.at(L, idx[si[e]], beta[si[e]] * mats.Le[obj[e]] * (w * front)[:, None])
         kind = mats.kind[obj]
         alive_s = (kind != EMISSIVE) & (bounces[si] < max_depth)
@@ -273,6 +280,8 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
                 f[nsv:] = ph[:, None]
                 pb[nsv:] = ph
             ok = lsmp.valid & (f.max(axis=1) > 0)
+            if strategy == "bsdf":
+                ok &= lsmp.delta
             if np.any(ok):
                 k = np.nonzero(ok)[0]
                 ngs = np.zeros((len(k), 3))
@@ -284,7 +293,8 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
                 if np.any(surf_k):
                     o_sh[surf_k] = spawn_origin(pts[k[surf_k]], ngs[surf_k], lsmp.wi[k[surf_k]], extent)
                 T = shadow_transmittance(ctx, o_sh, None, lsmp.wi[k], lsmp.dist[k], start_mid, rng)
-                w = np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], heuristic))
+                w = (np.ones(len(k)) if strategy == "light"
+                     else np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], heuristic)))
                 contrib = f[k] * lsmp.Li[k] * T * (w / lsmp.pdf[k])[:, None]
                 owner = np.concatenate([sa, ma])[k]
                 np.add.at(L, idx[owner], beta[owner] * contrib)
@@ -371,7 +381,7 @@ def render_volpath(scene, camera: Camera, settings, sample_range=None, effects=N
         jit = np.stack([pix % k.width + rng.random(len(flat)), pix // k.width + rng.random(len(flat))], axis=1)
         o, d = camera.pixel_rays(jit)
         L = trace(ctx, o, d, np.full(len(o), mid0, np.int64), rng, settings.max_depth, settings.rr_depth,
-                  settings.roulette, "caustics" in eff, hp)
+                  settings.roulette, "caustics" in eff, hp, settings.strategy)
         if not np.all(np.isfinite(L)):
             raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
         film.add(pix, L)
