@@ -155,20 +155,29 @@ class RenderSettings:
             raise ValueError(f"photons_per_pass must be >= 1, got {self.photons_per_pass}")
 
 
+#: emitters subtending less than this solid angle (sr) from the scene's centre make caustics hard
+#: for path tracing: bench_hard_paths' source-size sweep measured bdpt's equal-time RMSE at about
+#: 1x path's for a 0.4 m source 2.35 m away (0.029 sr) and 0.18-0.28x for a 0.2 m one (0.0072 sr)
+SMALL_SOURCE_SR = 0.015
+
+
 def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False,
-                      glossy: bool = False) -> str:
+                      glossy: bool = False, small_sources: bool = False) -> str:
     """The cheapest integrator covering ``effects`` (a set of effect names) and nothing more.
 
     ``auto``: "volpath" when media are needed or the scene has GGX materials (``glossy``: the
     compiled kernels do not shade them), else "direct" unless interreflection or caustics are
     needed, then "path", or "bdpt" when the caustics come from point/spot/directional lights
     (a delta light seen through a delta BSDF: only light tracing reaches it, and bdpt is the
-    unbiased integrator that does; sppm is consistent only and never chosen by auto). A
+    unbiased integrator that does; sppm is consistent only and never chosen by auto) or from
+    ``small_sources`` (every area emitter below SMALL_SOURCE_SR: path finds their caustics only
+    when a BSDF sample happens to hit them, bdpt's light subpaths do not depend on size). A
     requested integrator that cannot reach an effect (or shade a glossy material) raises
     ValueError naming it, as do delta-light caustics asked of an eye-path-only integrator.
     """
     eff = frozenset(effects) & _TRANSPORT
-    if requested == "auto" and "caustics" in eff and has_delta_lights and not (glossy or "media" in eff):
+    if (requested == "auto" and "caustics" in eff and (has_delta_lights or small_sources)
+            and not (glossy or "media" in eff)):
         return "bdpt"
     if glossy and requested not in ("auto", "volpath"):
         raise ValueError(f"integrator '{requested}' cannot shade glossy (GGX) materials; use 'volpath' or 'auto'")
@@ -206,6 +215,38 @@ class PreparedScene:
     has_delta_lights: bool
     emit_accel: Accel | None = None
     kernel: KernelScene | None = None
+    #: largest solid angle (sr) an area emitter subtends from the scene's centre (0: none)
+    emitter_solid_angle: float = 0.0
+
+    @property
+    def small_sources(self) -> bool:
+        """Area emitters exist and each subtends less than SMALL_SOURCE_SR."""
+        return 0.0 < self.emitter_solid_angle < SMALL_SOURCE_SR
+
+    def choose(self, effects, requested: str = "auto") -> str:
+        """:func:`choose_integrator` with this scene's lights and materials."""
+        return choose_integrator(effects, requested, self.has_delta_lights, self.mats.has_glossy, self.small_sources)
+
+
+def emitter_solid_angle(geom: Geometry, mats: MaterialTable) -> float:
+    """Largest A / d^2 over emissive objects: A the object's area, d the distance from its
+    area-weighted centre to the centre of the bounding box of everything that does not emit.
+    A / d^2 bounds the solid angle of any shape's projection (a sphere's is a quarter of it)."""
+    if len(geom.obj) == 0:
+        return 0.0
+    emit = mats.emits[geom.obj] & geom.valid
+    if not emit.any() or emit.all():
+        return 0.0
+    rest = np.concatenate([geom.v0[~emit], (geom.v0 + geom.e1)[~emit], (geom.v0 + geom.e2)[~emit]])
+    centre = 0.5 * (rest.min(axis=0) + rest.max(axis=0))
+    best = 0.0
+    for k in np.unique(geom.obj[emit]):
+        t = emit & (geom.obj == k)
+        a = geom.area[t]
+        c = ((geom.v0[t] + (geom.e1[t] + geom.e2[t]) / 3.0) * a[:, None]).sum(axis=0) / max(a.sum(), 1e-300)
+        d2 = float(np.sum((c - centre) ** 2))
+        best = max(best, min(2.0 * np.pi, float(a.sum()) / max(d2, 1e-300)))
+    return best
 
 
 def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
@@ -217,7 +258,8 @@ def prepare(scene: Scene, threads: int = 2) -> PreparedScene:
     delta = any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in scene.lights)
     emitters = mats.emits[geom.obj] if len(geom.obj) else np.zeros(0, bool)
     emit_accel = Accel(scene, threads=1, geometry=geom, subset=emitters) if emitters.any() else None
-    return PreparedScene(geom, accel, mats, lights, np.asarray(scene.background, np.float64), delta, emit_accel)
+    return PreparedScene(geom, accel, mats, lights, np.asarray(scene.background, np.float64), delta, emit_accel,
+                         emitter_solid_angle=emitter_solid_angle(geom, mats))
 
 
 def _kernel_scene(ps: PreparedScene) -> KernelScene:
@@ -337,7 +379,7 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
     t0 = time.perf_counter()
     eff = scene_effects(scene) if effects is None else frozenset(effects)
     ps = prepared if prepared is not None else prepare(scene, threads=settings.threads)
-    integ = choose_integrator(eff, settings.integrator, ps.has_delta_lights, ps.mats.has_glossy)
+    integ = ps.choose(eff, settings.integrator)
     if integ == "volpath":
         from .volpath import render_volpath
         return render_volpath(scene, camera, settings, sample_range, eff, ps)

@@ -98,7 +98,7 @@ from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, bsdf_sample
 from .camera import Camera
 from .effects import scene_effects
 from .film import Film, RenderResult
-from .pathtracer import PreparedScene, choose_integrator, prepare
+from .pathtracer import PreparedScene, prepare
 from .sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 
 __all__ = ["DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
@@ -311,7 +311,7 @@ def _check_supported(scene, ps: PreparedScene, effects) -> None:
         raise ValueError("integrator 'pssmlt' cannot reach effect 'media' (participating media); use 'volpath'")
     if ps.mats.has_glossy:
         raise ValueError("integrator 'pssmlt' cannot shade glossy (GGX) materials; use 'volpath'")
-    choose_integrator(effects, "pssmlt", ps.has_delta_lights, ps.mats.has_glossy)  # caustics from delta lights
+    ps.choose(effects, "pssmlt")  # caustics from delta lights
 
 
 def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,

@@ -111,7 +111,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
     effects = frozenset(scene_effects(rig.scene))
     prepared = pathtracer.prepare(rig.scene)
     try:
-        chosen_integrator = pathtracer.choose_integrator(effects, integrator, prepared.has_delta_lights)
+        chosen_integrator = prepared.choose(effects, integrator)
     except ValueError as exc:
         raise BadInput(f"--integrator: {exc}") from None
     settings = replace(settings, integrator=chosen_integrator)

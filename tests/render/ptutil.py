@@ -108,17 +108,18 @@ def assert_images_agree(a, b, alpha: float = 0.01, block: int = 1):
 
 
 
-def caustic_scene():
+def caustic_scene(light_half: float = 0.2):
     """scenes/glass_caustic.yaml built in code: glass ball (r 0.5, ior 1.5) over a floor of
-    albedo 0.6 under a 0.4 x 0.4 source of radiance 100 at z = 3; its camera at 64 x 64."""
+    albedo 0.6 under a 0.4 x 0.4 source of radiance 100 at z = 3 (other sizes: side
+    2 light_half at the same power); its camera at 64 x 64."""
     from render.scene import Dielectric
 
     ball = trimesh.creation.icosphere(3, 0.5)
     ball.apply_translation([0, 0, 0.8])
     sc = Scene("glass_caustic", [SceneObject("floor", quad((0, 0, 0), 3, 3), Lambertian(0.6)),
                                  SceneObject("ball", ball, Dielectric(1.5)),
-                                 SceneObject("light", quad((0, 0, 3.0), 0.2, 0.2, normal_sign=-1.0),
-                                             Emissive(np.full(3, 100.0)))])
+                                 SceneObject("light", quad((0, 0, 3.0), light_half, light_half, normal_sign=-1.0),
+                                             Emissive(np.full(3, 100.0 * (0.2 / light_half) ** 2)))])
     cam = Camera(Intrinsics.from_fov(64, 64, 45.0),
                  look_at(np.array([0, -3.2, 2.2]), np.array([0, 0, 0.4]), np.array([0.0, 0.0, 1.0])), "c")
     return sc, cam

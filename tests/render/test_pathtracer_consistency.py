@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from ptutil import CORNELL_EFFECTS_DIRECT, assert_images_agree, compare_images, quad
+from ptutil import CORNELL_EFFECTS_DIRECT, assert_images_agree, caustic_scene, compare_images, quad
 from render.film import merge_results
-from render.pathtracer import RenderSettings, choose_integrator, render, refine
+from render.pathtracer import SMALL_SOURCE_SR, RenderSettings, choose_integrator, prepare, render, refine
 from render.scene import Dielectric, Emissive, Lambertian, PointLight, Scene, SceneObject
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
+from rig.build import load_scene
 
 
 def test_cornell_red_wall_on_the_left(cornell_path_reference):
@@ -133,6 +134,23 @@ def test_choose_integrator():
     assert choose_integrator({"direct", "caustics"}, has_delta_lights=True) == "bdpt"
     with pytest.raises(ValueError, match="caustics"):  # volpath cannot, bdpt does not render media
         choose_integrator({"direct", "caustics", "media"}, has_delta_lights=True)
+    # caustics of small area sources: path is unbiased but finds them by chance; auto picks bdpt
+    assert choose_integrator({"direct", "caustics"}, small_sources=True) == "bdpt"
+    assert choose_integrator({"direct", "caustics"}, small_sources=False) == "path"
+    assert choose_integrator({"direct", "interreflection"}, small_sources=True) == "path"
+    assert choose_integrator({"direct", "caustics"}, glossy=True, small_sources=True) == "volpath"
+
+
+def test_small_sources_are_measured_by_solid_angle():
+    """The glass-caustic layout: its yaml's 0.4 m source at 2.35 m from the scene's centre
+    subtends 0.029 sr (path), a 0.2 m one 0.0072 sr (bdpt); the Cornell box's 0.18 sr."""
+    big, small = prepare(caustic_scene(0.2)[0]), prepare(caustic_scene(0.1)[0])
+    assert big.emitter_solid_angle == pytest.approx(0.16 / 2.35 ** 2, rel=0.02)
+    assert small.emitter_solid_angle == pytest.approx(0.04 / 2.35 ** 2, rel=0.02)
+    assert small.emitter_solid_angle < SMALL_SOURCE_SR < big.emitter_solid_angle
+    assert (big.choose({"direct", "caustics"}), small.choose({"direct", "caustics"})) == ("path", "bdpt")
+    assert not prepare(load_scene("cornell_spheres").scene).small_sources
+    assert prepare(load_scene("turntable").scene).emitter_solid_angle == 0.0  # no area emitters
 
 
 def test_unreachable_effects_raise_from_render(cornell):
