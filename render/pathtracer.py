@@ -156,9 +156,11 @@ class RenderSettings:
 
 
 #: emitters subtending less than this solid angle (sr) from the scene's centre make caustics hard
-#: for path tracing: bench_hard_paths' source-size sweep measured bdpt's equal-time RMSE at about
-#: 1x path's for a 0.4 m source 2.35 m away (0.029 sr) and 0.18-0.28x for a 0.2 m one (0.0072 sr)
-SMALL_SOURCE_SR = 0.015
+#: for path tracing. bench_hard_paths' source-size sweep (glass ball under a square source 2.35 m
+#: from the scene's centre, same power) measured bdpt's equal-time image RMSE at 2.8x path's for
+#: sources of 0.4 and 0.2 m (0.029, 0.0072 sr; in the caustic alone 0.63x, 0.27x) and 0.14x for
+#: 0.1 m (0.0018 sr): the threshold sits between the last two, at their geometric mean
+SMALL_SOURCE_SR = 0.0036
 
 
 def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False,
