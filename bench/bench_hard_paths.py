@@ -4,9 +4,11 @@ the cost of pruning (effects drive the integrator; media code only runs with med
 Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured in one run:
 
 * caustic scenes (glass ball on a diffuse floor under a square area light at 3 m, 48 x 48):
-  ``caustic_small`` under the issue's small source (0.1 m, SMALL_SOURCE), against a long
-  ``bdpt`` reference, and ``caustic`` under scenes/glass_caustic.yaml's 0.4 m source, against a
-  long ``path`` reference (both sources emit the same power). Each of ``path`` (compiled
+  ``caustic_small`` under the issue's small source (0.1 m, SMALL_SOURCE), against the per-pixel
+  inverse-variance combination of long ``bdpt`` and ``path`` renders (:func:`combined_reference`),
+  and ``caustic`` under scenes/glass_caustic.yaml's 0.4 m source, against a long ``path``
+  render (both sources emit the same power). Each row's RMSE is over the whole image, the
+  caustic region (:func:`caustic_region`) and the rest. Each of ``path`` (compiled
   kernels), ``volpath``, ``bdpt``, ``pssmlt`` (numpy) and ``sppm`` (rows' ``spp`` = passes of
   SPPM_PHOTONS photons) runs at spp chosen so its wall times span path's; ``<scene>_equal_time``
   interpolates every integrator's RMSE (log-log) at the longest time all of them reached, and
@@ -17,7 +19,8 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   hard_paths_rmse_time.svg (log10 RMSE vs time).
 * which strategy wins where (``source_size_sweep``): for sources of side 0.4, 0.2, 0.1 and
   0.05 m at equal power, bdpt's and pssmlt's predicted RMSE at equal time over path's,
-  sqrt(t v / (t_path v_path)) from each render's own variance estimate. Path finds a caustic only
+  sqrt(t v / (t_path v_path)) from each render's own variance estimate, over the image and over
+  the caustic region (auto's SMALL_SOURCE_SR comes from here). Path finds a caustic only
   when a BSDF-sampled ray leaving the floor through the ball hits the source, so its variance
   there grows as the source's solid angle shrinks; bdpt's light subpaths do not care.
 * pruning: median render time of the no-media scene with ``path`` (what auto picks), with
