@@ -101,6 +101,9 @@ def plot_curves(path: Path, curves: dict[str, list[dict]], title: str, size=(900
         img.save(tmp, format="PNG")
 
 
+_MISSING = object()
+
+
 def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
     """``FIELD=VALUE`` strings -> {model: overrides} for :class:`recon.nerf.train.TrainConfig`.
     A field applies to every run whose model config has it (values are parsed as that field's
@@ -128,9 +131,6 @@ def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
         if not used:
             raise ValueError(f"--set {item!r}: no run's model config has a field {name!r}")
     return {m: tuple(v) for m, v in per_model.items()}
-
-
-_MISSING = object()
 
 
 def run_study(capture_dir, runs: list[Run], minutes: float, out, reference_dir=None, downsample: int | None = None,
