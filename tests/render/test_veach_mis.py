@@ -57,22 +57,16 @@ def test_every_cell_is_lit_and_finite(veach):
         assert _cell(renders["mis"], m)[0] > 0, key
 
 
-def test_bsdf_sampling_wins_on_smooth_plates_and_large_sources(veach):
-    """Smoothest plate, largest source: a light sample rarely falls in the narrow lobe."""
+@pytest.mark.parametrize("plate, source, winner, loser", [
+    (0, 3, "bsdf", "light"),  # smoothest plate, largest source: a light sample rarely falls in the lobe
+    (3, 0, "light", "bsdf"),  # roughest plate, smallest source: a BSDF sample rarely hits the sphere
+])
+def test_each_technique_wins_where_veach_says(veach, plate, source, winner, loser):
     cells, renders = veach
-    v_light = _cell(renders["light"], cells[0, 3])[1]
-    v_bsdf = _cell(renders["bsdf"], cells[0, 3])[1]
-    print(f"plate 0, source 3: light / bsdf variance {v_light / v_bsdf:.0f}")
-    assert v_light > 10 * v_bsdf, (v_light, v_bsdf)
-
-
-def test_light_sampling_wins_on_rough_plates_and_small_sources(veach):
-    """Roughest plate, smallest source: a BSDF sample rarely hits the tiny sphere."""
-    cells, renders = veach
-    v_light = _cell(renders["light"], cells[3, 0])[1]
-    v_bsdf = _cell(renders["bsdf"], cells[3, 0])[1]
-    print(f"plate 3, source 0: bsdf / light variance {v_bsdf / v_light:.0f}")
-    assert v_bsdf > 10 * v_light, (v_light, v_bsdf)
+    v_win = _cell(renders[winner], cells[plate, source])[1]
+    v_lose = _cell(renders[loser], cells[plate, source])[1]
+    print(f"plate {plate}, source {source}: {loser} / {winner} variance {v_lose / v_win:.0f}")
+    assert v_lose > 10 * v_win, (v_win, v_lose)
 
 
 def test_mis_is_never_much_worse_than_the_better_technique(veach):
