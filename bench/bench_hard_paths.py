@@ -86,11 +86,10 @@ def _rmse(a, b, mask=None):
     return float(np.sqrt(e2.mean() if mask is None else e2[mask].mean()))
 
 
-def caustic_region(sc: Scene, cam: Camera, radius: float = 0.3) -> np.ndarray:
+def caustic_region(ps, cam: Camera, radius: float = 0.3) -> np.ndarray:
     """(H, W) bool: pixels whose first hit is the floor within ``radius`` of the spot under the
     ball, where the caustic lies (the rest of the image: the ball, its highlights and the floor
-    lit directly)."""
-    ps = prepare(sc)
+    lit directly). ps: the scene's :class:`render.pathtracer.PreparedScene`."""
     o, d = cam.pixel_rays()
     h = ps.accel.intersect(o, d)
     p = o + np.where(np.isfinite(h.t), h.t, 0.0)[:, None] * d
@@ -188,7 +187,7 @@ def _source_sweep(cam: Camera, quick: bool) -> list[dict]:
     for half in SWEEP_HALVES:
         sc = caustic_scene(light_half=half)
         ps = prepare(sc)
-        region = caustic_region(sc, cam)
+        region = caustic_region(ps, cam)
         cost = {}
         for integ, (spp_full, spp_quick) in SWEEP_SPP.items():
             ts = time.perf_counter()
@@ -222,7 +221,7 @@ def main(quick: bool = False) -> None:
               ("fog", caustic_scene(0.4), [("volpath", 256 if quick else 4096)], ["volpath"]))
     for scene_name, sc, ref_runs, integs in setups:
         ps = prepare(sc)
-        region = caustic_region(sc, cam)
+        region = caustic_region(ps, cam)
         ts = time.perf_counter()
         refs = [render(sc, cam, RenderSettings(integrator=i, spp=n, max_depth=8, seed=999 + k), prepared=ps)
                 for k, (i, n) in enumerate(ref_runs)]
