@@ -20,6 +20,27 @@ SCHEDULER = typer.Option(None, envvar="LUMIGRAPH_SCHEDULER", help="existing Dask
 WORKERS = typer.Option(None, help="local Dask workers (default: cores/2, in process when that is 1; 0: in process)")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("lumigraph")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        typer.echo(f"lumigraph {_version()}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_show_version, is_eager=True,
+                                       help="print the version and exit")):
+    """lumigraph: capture, estimate poses, build light slabs and NeRFs, validate against a path tracer."""
+
+
 def _cluster(scheduler: Optional[str], workers: Optional[int]):
     from .distributed import ClusterConfig
 
@@ -237,13 +258,31 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
         typer.echo(line)
 
 
+def _usage_error_line(exc: Exception) -> str | None:
+    """One line for a command-line usage error (unknown option, missing or malformed argument), or
+    None when ``exc`` is not one. typer bundles its own click (``typer._click``) whose exceptions
+    are not ``click.ClickException``: both kinds are recognised."""
+    import click
+    from typer._click import exceptions as typer_click
+
+    if not isinstance(exc, (click.ClickException, typer_click.ClickException)):
+        return None
+    if isinstance(exc, typer_click.NoArgsIsHelpError):
+        typer.echo(exc.format_message())  # the help, on stdout
+        return "missing command (see the help above)"
+    ctx = getattr(exc, "ctx", None)
+    hint = f" (try '{ctx.command_path} --help')" if ctx is not None else ""
+    return " ".join(exc.format_message().split()) + hint
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: maps bad input to exit 2 with one line, lets bugs surface with exit 1."""
+    """Entry point: bad input and usage errors exit 2 with one line on stderr; bugs surface with
+    exit 1 and their traceback."""
     from rig.capture import CaptureError
     from rig.spec import SpecError
 
     try:
-        app(args=argv, standalone_mode=False)
+        app(args=argv, standalone_mode=False, prog_name="lumigraph")
     except (BadInput, SpecError, CaptureError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"lumigraph: error: {msg}", file=sys.stderr)
@@ -253,13 +292,12 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Abort:
         print("lumigraph: aborted", file=sys.stderr)
         return 1
-    except Exception as exc:  # click's usage errors carry their own exit code (2)
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            return exc.exit_code
-        raise
+    except Exception as exc:
+        line = _usage_error_line(exc)
+        if line is None:
+            raise
+        print(f"lumigraph: error: {line}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -229,3 +229,29 @@ def test_leftovers_of_dead_runs_are_removed_by_the_next_run(tmp_path):
         (tmp / "done.txt").write_text("ok")
     assert (final / "done.txt").read_text() == "ok"
     assert not any(f.exists() for f in stale) and alive.exists()
+
+
+@pytest.mark.parametrize("argv, names", [
+    (["--no-such-option"], "--no-such-option"),
+    ([], "missing command"),
+    (["reference"], "scene"),
+    (["reference", "cornell", "--spp", "abc"], "--spp"),
+    (["reference", "cornell", "--size", "3"], "--size"),
+    (["capture", "cornell", "--bogus", "1"], "--bogus"),
+    (["no-such-verb"], "no-such-verb"),
+], ids=["unknown_option", "no_arguments", "missing_argument", "spp_not_a_number", "size_one_value",
+        "unknown_verb_option", "unknown_verb"])
+def test_usage_error_exits_2_with_one_line_and_no_traceback(argv, names):
+    """typer bundles its own click, whose usage errors are not click.ClickException: each must still
+    reach the user as one stderr line naming the option, exit 2, through the real process."""
+    proc = subprocess.run([sys.executable, "-m", "pipeline", *argv], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and names in lines[0] and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_version_prints_the_package_version():
+    from importlib.metadata import version
+
+    proc = subprocess.run([sys.executable, "-m", "pipeline", "--version"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"lumigraph {version('lumigraph')}", proc
