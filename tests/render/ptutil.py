@@ -59,6 +59,26 @@ def image_mean_and_se(result) -> tuple[np.ndarray, np.ndarray]:
     return m, se
 
 
+# One-number furnaces (pbrt-v4's integrator test: L = 1 inside a closed emitting sphere): the
+# image mean must lie within q standard errors of the closed form, q the two-sided quantile at
+# FURNACE_ALPHA per channel (normal: 4.0; Student t when the se comes from K independent groups),
+# and q se must stay below FURNACE_MAX_TOL so that a 2% bias cannot pass on noise alone.
+FURNACE_ALPHA = 6.3e-5
+FURNACE_MAX_TOL = 0.0125
+
+
+def assert_furnace_mean(m, se, expected: float = 1.0, dof: int | None = None) -> float:
+    """Assert |m - expected| < q se per channel (m, se: (3,)), q at FURNACE_ALPHA (normal, or
+    Student t with ``dof`` degrees of freedom), and q se < FURNACE_MAX_TOL. Returns max |z|."""
+    m, se = np.asarray(m, np.float64), np.asarray(se, np.float64)
+    q = stats.norm.ppf(1 - FURNACE_ALPHA / 2) if dof is None else stats.t.ppf(1 - FURNACE_ALPHA / 2, dof)
+    assert np.all(np.isfinite(m)) and np.all(se > 0), (m, se)
+    assert np.all(q * se < FURNACE_MAX_TOL), f"furnace too noisy to see a 2% bias: q se = {q * se}"
+    z = np.abs(m - expected) / se
+    assert np.all(z < q), f"image mean {m} vs {expected}: |z| = {z} >= {q:.2f} (se {se})"
+    return float(z.max())
+
+
 def _blocks(img: np.ndarray, b: int, var: bool) -> np.ndarray:
     """Average (H, W, 3) over b x b pixel blocks (a block mean's variance is sum var / b^4)."""
     h, w = img.shape[0] // b * b, img.shape[1] // b * b

@@ -26,8 +26,8 @@ import pytest
 import trimesh
 from scipy import stats
 
-from ptutil import (_blocks, assert_images_agree, caustic_region, caustic_scene, compare_images, image_mean_and_se, quad,
-                    receiver_box)
+from ptutil import (_blocks, assert_furnace_mean, assert_images_agree, caustic_region, caustic_scene, compare_images,
+                    image_mean_and_se, quad, receiver_box)
 from render.bdpt import render_bdpt
 from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
@@ -100,13 +100,15 @@ def _furnace(rho, le):
 def test_furnace_one_number():
     """pbrt-v4's integrator test: inside a closed diffuse sphere of albedo 0.5 whose walls emit
     0.5 (two-sided, a DiffuseEmitter: every vertex is both a light and a reflector, so every
-    strategy contributes), L = Le / (1 - rho) = 1; the image mean lies in 1.0 +- 0.025
-    (256 passes, max depth 60, seed 22; measured 1.0017, standard error 0.0026)."""
+    strategy contributes), L = Le / (1 - rho) = 1; the image mean (256 passes, max depth 60,
+    seed 22) lies within 4.0 standard errors of 1 (ptutil.assert_furnace_mean: alpha 6.3e-5
+    two-sided per channel) and 4 se < 1.25%, so a 2% bias fails. The se comes from the variance
+    image (per-pass moments); light-tracing splats correlate pixels within a pass, but the se of
+    16 independent sample ranges' image means agrees (0.00267 against 0.00264). Measured 1.0017,
+    z 0.65; the emitter's radiance scaled by 1.02 (render/bsdf.py) fails it (z 8.1)."""
     sc, cam = _furnace(0.5, 0.5)
     r = render(sc, cam, RenderSettings(integrator="bdpt", spp=256, max_depth=60, seed=22))
-    m, se = image_mean_and_se(r)
-    assert np.all(np.abs(m - 1.0) < 0.025), m
-    assert np.all(se < 0.005)
+    assert_furnace_mean(*image_mean_and_se(r))
 
 
 @pytest.mark.parametrize("depth,roulette", [(1, False), (3, True)])

@@ -1,6 +1,6 @@
 """``volpath`` as an integrator of the path tracer: consistency with ``path`` per pixel
 (two-sample Z-tests, Sidak-corrected, tests/render/ptutil.py), the one-number furnace within
-1.0 +- 0.025 (pbrt-v4's integrator test) for every integrator, lossless pruning of caustics
+4 standard errors (pbrt-v4's integrator test) for every integrator, lossless pruning of caustics
 and of media code, and the effects-driven choice (glossy -> volpath, media -> volpath,
 unreachable -> error). Fixed seeds."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from ptutil import assert_images_agree, image_mean_and_se, quad
+from ptutil import assert_furnace_mean, assert_images_agree, image_mean_and_se, quad
 from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.microfacet import RoughConductor, RoughDielectric
@@ -28,14 +28,17 @@ def test_volpath_agrees_with_path_on_cornell(cornell, cornell_path_reference):
 
 @pytest.mark.parametrize("integrator", ["path", "volpath"])
 def test_furnace_one_number(integrator):
-    """pbrt-v4's test: inside a closed diffuse sphere of albedo 0.5 emitting 0.5, L = 1; every
-    integrator's image mean lies in 1.0 +- 0.025."""
+    """pbrt-v4's test: inside a closed diffuse sphere of albedo 0.5 emitting 0.5, L = 1 (max depth
+    60: truncation 0.5^61). The image mean (512 spp, seed 22) lies within 4.0 standard errors of 1
+    (ptutil.assert_furnace_mean: alpha 6.3e-5 two-sided per channel; the se from the variance image,
+    pixels being independent), and 4 se < 1.25%, so a 2% bias fails. Measured: path z +1.7
+    (se 0.0028), volpath z +0.75 (se 0.0026); the emitter's radiance scaled by 1.02
+    (render/bsdf.py) fails both (z 8.8 and 8.3)."""
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
     sc = Scene("furnace", [SceneObject("s", sphere, DiffuseEmitter(albedo=0.5, radiance=0.5, two_sided=True))])
     cam = Camera(Intrinsics.from_fov(4, 4, 60.0), np.eye(4), "inside")
-    r = render(sc, cam, RenderSettings(integrator=integrator, spp=256, max_depth=60, seed=22))
-    m, _ = image_mean_and_se(r)
-    assert np.all(np.abs(m - 1.0) < 0.025), m
+    r = render(sc, cam, RenderSettings(integrator=integrator, spp=512, max_depth=60, seed=22))
+    assert_furnace_mean(*image_mean_and_se(r))
 
 
 def _glass_scene(material):
