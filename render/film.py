@@ -5,6 +5,11 @@ S2 (float64). The mean is S1 / n and the variance *of the mean* (the squared sta
 is (S2 - S1^2 / n) / (n (n - 1)): every render carries its own error bars. Two films of
 disjoint sample ranges merge by adding moments, which is exactly the film of the union (up to
 float64 rounding of the sums).
+
+Integrators whose samples are not independent (sppm's progressive passes, pssmlt's Markov
+chains) split a render into independent *groups* instead (:func:`group_ranges`): each group is
+one sample of the film (its image), so the mean is the mean of the group images and the
+variance that of the mean across groups, and renders of whole groups merge like any other.
 """
 from __future__ import annotations
 
@@ -12,7 +17,46 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Film", "RenderResult", "merge_results"]
+__all__ = ["Film", "RenderResult", "merge_results", "merge_stats", "group_ranges", "whole_groups"]
+
+
+def group_ranges(spp: int, groups: int) -> list[tuple[int, int]]:
+    """The independent groups of a render of ``spp`` samples: min(groups, spp) contiguous
+    half-open sample ranges [g spp // K, (g + 1) spp // K) covering [0, spp), sizes differing
+    by at most one. A unit of work of a grouped integrator is a run of whole groups."""
+    spp, groups = int(spp), int(groups)
+    if spp < 1 or groups < 1:
+        raise ValueError(f"spp and groups must be >= 1, got {spp}, {groups}")
+    k = min(groups, spp)
+    return [(g * spp // k, (g + 1) * spp // k) for g in range(k)]
+
+
+def whole_groups(sample_range: tuple[int, int], spp: int, groups: int, integrator: str) -> list[tuple[int, int]]:
+    """The groups of :func:`group_ranges` (spp, groups) that ``sample_range`` covers exactly;
+    ValueError naming ``integrator`` when the range does not start and end on group boundaries."""
+    a, b = int(sample_range[0]), int(sample_range[1])
+    ranges = group_ranges(spp, groups)
+    inside = [r for r in ranges if a <= r[0] and r[1] <= b]
+    if not inside or inside[0][0] != a or inside[-1][1] != b:
+        starts = [r[0] for r in ranges] + [spp]
+        raise ValueError(f"integrator '{integrator}' renders whole groups of samples: sample_range must start and "
+                         f"end on the group boundaries {starts} of its {spp} samples (no split inside a group, "
+                         f"no refine), got {(a, b)}")
+    return inside
+
+
+def merge_stats(a: dict, b: dict) -> dict:
+    """Stats of two merged renders: numbers (not bools) present in either are summed (render
+    stats are additive counters: time_s, paths, rays, ...); anything else is kept where both
+    agree and dropped where they differ."""
+    out = {}
+    for k in a.keys() | b.keys():
+        x, y = a.get(k, 0), b.get(k, 0)
+        if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (x, y)):
+            out[k] = x + y
+        elif k in a and k in b and x == y:
+            out[k] = x
+    return out
 
 
 @dataclass
@@ -73,7 +117,8 @@ class Film:
 class RenderResult:
     """A render: mean (H, W, 3) float32 linear radiance, variance (H, W, 3) float32 variance of
     that mean, spp, the half-open ``sample_range`` rendered, the raw ``film`` moments, the
-    ``integrator`` used and ``stats`` (time_s, paths, rays)."""
+    ``integrator`` used and ``stats``: additive counters (:func:`merge_stats` sums them), at
+    least time_s and paths; rays where the integrator counts them."""
 
     mean: np.ndarray
     variance: np.ndarray
@@ -103,7 +148,5 @@ def merge_results(a: RenderResult, b: RenderResult) -> RenderResult:
         raise ValueError(f"cannot merge renders of different integrators ({a.integrator}, {b.integrator})")
     lo, hi = min(a0, b0), max(a1, b1)
     film = a.film.merged(b.film)
-    stats = {k: a.stats.get(k, 0) + b.stats.get(k, 0) for k in set(a.stats) | set(b.stats)
-             if isinstance(a.stats.get(k, 0), (int, float)) and isinstance(b.stats.get(k, 0), (int, float))}
-    res = RenderResult(film.mean(), film.variance(), a.spp + b.spp, (lo, hi), film, a.integrator, stats)
-    return res
+    return RenderResult(film.mean(), film.variance(), a.spp + b.spp, (lo, hi), film, a.integrator,
+                        merge_stats(a.stats, b.stats))

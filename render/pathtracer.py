@@ -33,16 +33,18 @@ Integrators (Heckbert's notation; see render.effects):
 * ``sppm`` (:mod:`render.sppm`, numpy): stochastic progressive photon mapping (Hachisuka and
   Jensen 2009) for caustics (L S+ D E) that path tracing finds only by chance: direct light by
   next-event estimation at each pixel's visible point, everything else from photons. Consistent,
-  not unbiased: ``spp`` is the number of passes, ``photons_per_pass`` the photons per pass; its
-  variance image is zero (no unbiased per-pixel variance exists) and its passes cannot be split
-  into sample ranges or refined. Reaches caustics from point, spot and directional lights too.
-  Never chosen by ``auto``; no media, no GGX materials.
+  not unbiased: ``spp`` is the number of passes, ``photons_per_pass`` the photons per pass,
+  split into independent groups of passes whose spread is the variance image (noise, not the
+  blur bias they share); a sample range must hold whole groups (no refine). Reaches caustics
+  from point, spot and directional lights too. Never chosen by ``auto``; no media, no GGX
+  materials.
 * ``bdpt`` (:mod:`render.bdpt`, numpy): bidirectional path tracing with every (s, t) strategy
   (light tracing to the camera included), power-heuristic MIS; ``auto`` picks it for caustics
   from point, spot and directional lights. No media, no GGX materials.
 * ``pssmlt`` (:mod:`render.pssmlt`, numpy): Metropolis light transport in primary sample space
   over a path sampler; ``spp`` is mutations per pixel; its variance comes from independent
-  groups of chains. Never chosen by ``auto``; no media, no GGX materials.
+  groups of chains, and a sample range must hold whole groups (no refine). Never chosen by
+  ``auto``; no media, no GGX materials.
 
 Conventions: radiometry and light units of :mod:`render.scene`; pixel centres at +0.5 and
 OpenCV camera axes of :mod:`render.camera`; scene.background is the radiance of every escaping
@@ -59,7 +61,8 @@ the listed effects and nothing more.
 
 A render is a pure function of (scene, camera, settings, sample range): random numbers are a
 hash of (seed, pixel, sample index, dimension) (:mod:`render.sampling`), so renders of disjoint
-sample ranges merge exactly (:func:`render.film.merge_results`) and :func:`refine` adds samples.
+sample ranges merge exactly (:func:`render.film.merge_results`) and :func:`refine` adds samples
+(sppm and pssmlt: ranges of whole independent groups, :func:`work_units`).
 
 Usage (what ``lumigraph reference`` calls)::
 
@@ -89,7 +92,7 @@ from .sampling import _GOLDEN, _mix64
 from .scene import DirectionalLight, PointLight, Scene, SpotLight
 
 __all__ = [
-    "RenderSettings", "PreparedScene", "prepare", "choose_integrator", "render", "refine",
+    "RenderSettings", "PreparedScene", "prepare", "choose_integrator", "render", "refine", "work_units",
     "INTEGRATOR_EFFECTS",
 ]
 
@@ -105,6 +108,9 @@ INTEGRATOR_EFFECTS = {
 #: integrators implemented in their own modules, each exposing render_result(scene, camera, settings,
 #: sample_range, effects, prepared) -> RenderResult
 _MODULE_INTEGRATORS = frozenset({"sppm", "bdpt", "pssmlt"})
+#: integrators whose samples are not independent: a render splits into independent groups (each
+#: module's GROUPS; render.film.group_ranges), and a unit of work is a run of whole groups
+_GROUPED_INTEGRATORS = frozenset({"sppm", "pssmlt"})
 #: integrators that trace light subpaths, and so reach caustics from point/spot/directional lights
 _LIGHT_TRACING = frozenset({"sppm", "bdpt"})
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
@@ -418,6 +424,22 @@ def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettin
             pool.shutdown()
     stats = {"time_s": time.perf_counter() - t0, "paths": int(total), "rays": int(rays)}
     return RenderResult.from_film(film, (a, b), integ, stats)
+
+
+def work_units(integrator: str, spp: int, batch: int) -> list[tuple[int, int]]:
+    """The half-open sample ranges, in sample order, that a render of ``spp`` samples with
+    ``integrator`` (a chosen one, not "auto") splits into as independent units of work: runs of
+    ``batch`` samples, or for sppm and pssmlt their independent groups
+    (:func:`render.film.group_ranges`). Renders of the units merge, in this order, to the same
+    bytes wherever they ran (render.film.merge_results; the ``reference`` stage's fold)."""
+    spp, batch = int(spp), int(batch)
+    if spp < 1 or batch < 1:
+        raise ValueError(f"spp and batch must be >= 1, got {spp}, {batch}")
+    if integrator in _GROUPED_INTEGRATORS:
+        import importlib
+        from .film import group_ranges
+        return group_ranges(spp, importlib.import_module(f".{integrator}", __package__).GROUPS)
+    return [(a, min(a + batch, spp)) for a in range(0, spp, batch)]
 
 
 def refine(result: RenderResult, scene: Scene, camera: Camera, settings: RenderSettings,

@@ -67,6 +67,15 @@ region's mean) takes its variance from the group images (``PSSMLTResult.groups``
 the sum of the variance image. The RenderResult's film holds the K group images as K "samples"
 per pixel, so Film.mean and Film.variance reproduce both.
 
+**Units of work.** A group is a pure function of (scene, camera, seed, group index, its
+mutations): it is run alone (:func:`_run_group`), never vectorized with other groups, so its
+bytes do not depend on what else is rendered. Through :func:`render.pathtracer.render` a render
+of ``spp`` is split into K = min(:data:`GROUPS`, spp) groups over its sample range
+(:func:`render.film.group_ranges`; fewer than 8 groups, and a zero variance image for one, when
+spp < 8), and a ``sample_range`` of whole groups renders just those: renders of whole groups
+merge exactly in group order, so the ``reference`` stage's batches and workers give the same
+bytes.
+
 **Hard cases.** A chain in a tiny bright region rejects almost every proposal (small steps leave
 the region, large steps land in darker ones): it stays, splatting (1 - a) onto that pixel; the
 estimator stays finite and unbiased, and the group variance reports the resulting noise
@@ -79,12 +88,12 @@ finite and says so (``found_light`` False, stats["no_light"] True), never NaN.
 Supported: Lambertian (textured too), mirror, dielectric, area lights, point / spot /
 directional lights (next-event estimation only), background radiance; pinhole cameras and
 distorted ones (rays through :meth:`render.camera.Camera.pixel_rays`). GGX materials and
-participating media raise ValueError naming pssmlt. Like sppm, a render is a chain, not a set
-of independent samples: ``sample_range`` must start at 0 and renders cannot be merged or refined.
+participating media raise ValueError naming pssmlt. Inside a group the mutations are a Markov
+chain, not independent samples: a ``sample_range`` that splits a group, and refine(), raise.
 
 Random numbers: bootstrap samples are the counter-based hash of render.sampling (seed, group,
 index, dimension); chain selection and mutations come from numpy Generators seeded by (seed,
-stream). Same seed, same bytes.
+stream, group). Same seed, same bytes.
 """
 from __future__ import annotations
 
@@ -97,12 +106,12 @@ from .accel import offset_eps, spawn_origin
 from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, bsdf_sample
 from .camera import Camera
 from .effects import scene_effects
-from .film import Film, RenderResult
+from .film import Film, RenderResult, group_ranges
 from .pathtracer import PreparedScene, prepare
 from .sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 
 __all__ = ["DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
-           "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result"]
+           "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result", "GROUPS"]
 
 #: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2)
 DIMS_PER_BOUNCE = 6
@@ -314,152 +323,207 @@ def _check_supported(scene, ps: PreparedScene, effects) -> None:
     ps.choose(effects, "pssmlt")  # caustics from delta lights
 
 
+@dataclass
+class _GroupRun:
+    """One independent group of chains: image (npix, 3) float64, its bootstrap b, and counters."""
+
+    image: np.ndarray
+    b: float
+    chains: int
+    steps: int
+    bootstrap: int
+    proposed: int = 0
+    accepted: int = 0
+    large: int = 0
+    accepted_large: int = 0
+    bins_proposed: np.ndarray = None
+    bins_accepted: np.ndarray = None
+    longest_rejection_run: int = 0
+    running: int = 0  # chains that ran (their group found light, their start carried light)
+    moved: int = 0  # running chains whose state changed at least once
+    nonfinite: int = 0
+
+
+def _run_group(ps: PreparedScene, camera: Camera, group: int, mutations: int, chains: int, n_bootstrap: int,
+               max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: float) -> _GroupRun:
+    """Group ``group``: its bootstrap (n_bootstrap samples keyed by (seed, group)), min(chains,
+    mutations) chains started by resampling it, advanced ceil(mutations / chains) steps with
+    random streams keyed by (seed, group): a pure function of its arguments, whatever other
+    groups are rendered with it. The image is scaled to an estimate of the whole image."""
+    k = camera.intrinsics
+    npix = k.width * k.height
+    D = primary_dims(max_depth)
+    cpg = max(1, min(int(chains), int(mutations)))
+    steps = -(-int(mutations) // cpg)
+    s32 = int(seed) & 0xFFFFFFFF
+    keys, imp = bootstrap(ps, camera, n_bootstrap, max_depth, seed, group, caustics, heuristic)
+    run = _GroupRun(np.zeros((npix, 3)), float(imp.mean()), cpg, steps, n_bootstrap,
+                    bins_proposed=np.zeros(len(_IMPORTANCE_BINS) + 1), bins_accepted=np.zeros(len(_IMPORTANCE_BINS) + 1))
+    if run.b <= 0:  # no light found: the group runs no chain and its image is black
+        return run
+    b = run.b
+    rng_sel = np.random.default_rng([s32, 0x5053, 1, group])
+    cdf = np.cumsum(imp)
+    j = np.minimum(np.searchsorted(cdf, rng_sel.random(cpg) * cdf[-1], side="right"), n_bootstrap - 1)
+    X = uniform_block(keys[j], 0, D)
+    pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic)
+    run.nonfinite += bad
+    ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
+    X, pix_x, f_x, I_x = X[ok], pix_x[ok], f_x[ok], I_x[ok]
+    nc = len(X)
+    acc = run.image
+    rejections = np.zeros(nc, np.int64)
+    moved = np.zeros(nc, bool)
+    rng = np.random.default_rng([s32, 0x5053, 2, group])
+    for _ in range(steps if nc else 0):
+        large = rng.random(nc) < large_step
+        Y = small_step(X, rng)
+        nl = int(large.sum())
+        if nl:
+            Y[large] = rng.random((nl, D))
+        pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic)
+        run.nonfinite += bad
+        a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
+        # Kelemen's estimator: expected-value splats, balance heuristic with the large steps
+        den_y = I_y / b + large_step
+        w_y = np.where(den_y > 0, (a + large) / np.where(den_y > 0, den_y, 1.0), 0.0)
+        w_x = (1.0 - a) / (I_x / b + large_step)
+        slots = np.concatenate([pix_y, pix_x])
+        vals = np.concatenate([f_y * w_y[:, None], f_x * w_x[:, None]])
+        for c in range(3):
+            acc[:, c] += np.bincount(slots, weights=vals[:, c], minlength=npix)
+        accept = rng.random(nc) < a
+        bi = np.searchsorted(_IMPORTANCE_BINS, I_x / b, side="right")
+        run.bins_proposed += np.bincount(bi, minlength=len(run.bins_proposed))
+        run.bins_accepted += np.bincount(bi, weights=accept, minlength=len(run.bins_proposed))
+        run.proposed += nc
+        run.accepted += int(accept.sum())
+        run.large += nl
+        run.accepted_large += int((accept & large).sum())
+        rejections = np.where(accept, 0, rejections + 1)
+        run.longest_rejection_run = max(run.longest_rejection_run, int(rejections.max()))
+        moved |= accept
+        s = np.nonzero(accept)[0]
+        X[s], pix_x[s], f_x[s], I_x[s] = Y[s], pix_y[s], f_y[s], I_y[s]
+    run.running, run.moved = nc, int(moved.sum())
+    run.image = acc * (npix / float(cpg * steps))
+    return run
+
+
+def _check_arguments(spp: int, max_depth: int, large_step: float) -> None:
+    if spp < 1 or max_depth < 0:
+        raise ValueError(f"pssmlt: spp must be >= 1 and max_depth >= 0, got {spp}, {max_depth}")
+    if not 0.0 <= large_step <= 1.0:
+        raise ValueError(f"pssmlt: large_step must lie in [0, 1], got {large_step}")
+
+
 def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,
                   prepared: PreparedScene | None = None, chains: int = 4096, large_step: float = 0.3,
                   n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: float = 2.0) -> PSSMLTResult:
     """Render ``camera``'s view of ``scene`` by primary-sample-space Metropolis light transport.
 
-    spp: mutations per pixel on average (spp x W x H proposals in all, rounded up to a whole
-    number of steps of all chains). max_depth: maximum scattering events. chains: Markov chains
-    advanced together (split into ``groups`` independent groups, K >= 8; rounded down to a
-    multiple of K, at most the number of mutations). large_step: probability p_large of a large
-    step (0 <= p_large <= 1). n_bootstrap: uniform samples estimating b, over all groups (each
-    group gets n_bootstrap / K). effects: effects to simulate (default scene_effects(scene));
-    without 'caustics', caustic paths are dropped as in render.pathtracer. heuristic: MIS
-    exponent (2 power, 1 balance). Returns a :class:`PSSMLTResult`.
+    spp: mutations per pixel on average (spp x W x H proposals in all, split evenly over the
+    groups and rounded up to a whole number of steps of each group's chains). max_depth:
+    maximum scattering events. chains: Markov chains in all (chains / K per group, at most its
+    mutations). groups: K >= 8 independent groups (:func:`_run_group`: each its own bootstrap of
+    n_bootstrap / K samples, its own chains and random streams). large_step: probability
+    p_large of a large step (0 <= p_large <= 1). effects: effects to simulate (default
+    scene_effects(scene)); without 'caustics', caustic paths are dropped as in
+    render.pathtracer. heuristic: MIS exponent (2 power, 1 balance). Returns a :class:`PSSMLTResult`.
     """
     t0 = time.perf_counter()
     spp, max_depth, groups = int(spp), int(max_depth), int(groups)
-    if spp < 1 or max_depth < 0:
-        raise ValueError(f"pssmlt: spp must be >= 1 and max_depth >= 0, got {spp}, {max_depth}")
+    _check_arguments(spp, max_depth, large_step)
     if groups < 8:
         raise ValueError(f"pssmlt: groups must be >= 8 (the variance image needs them), got {groups}")
-    if not 0.0 <= large_step <= 1.0:
-        raise ValueError(f"pssmlt: large_step must lie in [0, 1], got {large_step}")
     if int(n_bootstrap) < groups:
         raise ValueError(f"pssmlt: n_bootstrap must be >= groups ({groups}), got {n_bootstrap}")
     eff = scene_effects(scene) if effects is None else frozenset(effects)
     ps = prepared if prepared is not None else prepare(scene)
     _check_supported(scene, ps, eff)
-    caustics = "caustics" in eff
     k = camera.intrinsics
-    npix = k.width * k.height
-    D = primary_dims(max_depth)
-    total = spp * npix
-    cpg = max(1, min(int(chains), total) // groups)  # chains per group
-    C = cpg * groups
-    steps = -(-total // C)
-    nb = int(n_bootstrap) // groups
-    seed = int(seed)
-    nonfinite = 0
-
-    # ---- bootstrap per group: b_g and the chains' starting states (resampled in proportion to I)
-    rng_sel = np.random.default_rng([seed & 0xFFFFFFFF, 0x5053, 1])
-    b = np.zeros(groups)
-    start_keys = np.zeros(C, np.uint64)
-    for g in range(groups):
-        keys, imp = bootstrap(ps, camera, nb, max_depth, seed, g, caustics, heuristic)
-        b[g] = imp.mean()
-        u_sel = rng_sel.random(cpg)
-        if b[g] > 0:
-            cdf = np.cumsum(imp)
-            j = np.minimum(np.searchsorted(cdf, u_sel * cdf[-1], side="right"), nb - 1)
-            start_keys[g * cpg:(g + 1) * cpg] = keys[j]
-    group_of = np.repeat(np.arange(groups), cpg)
-    acc = np.zeros((groups * npix, 3))
-    n_prop = n_acc = n_large = n_acc_large = 0
-    bins_prop = np.zeros(len(_IMPORTANCE_BINS) + 1)
-    bins_acc = np.zeros(len(_IMPORTANCE_BINS) + 1)
-    longest = 0
-    stuck = 1.0
-    live = np.nonzero(b[group_of] > 0)[0]  # a group whose bootstrap found no light runs no chain
-    found = len(live) > 0
-    if found:
-        X = uniform_block(start_keys[live], 0, D)
-        pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic)
-        nonfinite += bad
-        ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
-        live, X, pix_x, f_x, I_x = live[ok], X[ok], pix_x[ok], f_x[ok], I_x[ok]
-        bc = b[group_of[live]]
-        slot_base = group_of[live] * npix
-        nc = len(live)
-        run = np.zeros(nc, np.int64)
-        mv = np.zeros(nc, bool)
-        rng = np.random.default_rng([seed & 0xFFFFFFFF, 0x5053, 2])
-        for _ in range(steps):
-            large = rng.random(nc) < large_step
-            Y = small_step(X, rng)
-            nl = int(large.sum())
-            if nl:
-                Y[large] = rng.random((nl, D))
-            pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic)
-            nonfinite += bad
-            a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
-            # Kelemen's estimator: expected-value splats, balance heuristic with the large steps
-            den_y = I_y / bc + large_step
-            w_y = np.where(den_y > 0, (a + large) / np.where(den_y > 0, den_y, 1.0), 0.0)
-            w_x = (1.0 - a) / (I_x / bc + large_step)
-            slots = np.concatenate([slot_base + pix_y, slot_base + pix_x])
-            vals = np.concatenate([f_y * w_y[:, None], f_x * w_x[:, None]])
-            for c in range(3):
-                acc[:, c] += np.bincount(slots, weights=vals[:, c], minlength=groups * npix)
-            accept = rng.random(nc) < a
-            bi = np.searchsorted(_IMPORTANCE_BINS, I_x / bc, side="right")
-            bins_prop += np.bincount(bi, minlength=len(bins_prop))
-            bins_acc += np.bincount(bi, weights=accept, minlength=len(bins_prop))
-            n_prop += nc
-            n_acc += int(accept.sum())
-            n_large += nl
-            n_acc_large += int((accept & large).sum())
-            run = np.where(accept, 0, run + 1)
-            longest = max(longest, int(run.max()))
-            mv |= accept
-            s = np.nonzero(accept)[0]
-            X[s], pix_x[s], f_x[s], I_x[s] = Y[s], pix_y[s], f_y[s], I_y[s]
-        stuck = float(1.0 - mv.mean()) if nc else 1.0
-    imgs = acc.reshape(groups, npix, 3) * (npix / float(cpg * steps))
+    h, w = k.height, k.width
+    total = spp * w * h
+    runs = [_run_group(ps, camera, g, max(1, (g + 1) * total // groups - g * total // groups),
+                       max(1, int(chains) // groups), int(n_bootstrap) // groups, max_depth, seed, float(large_step),
+                       "caustics" in eff, heuristic) for g in range(groups)]
+    imgs = np.stack([r.image for r in runs])
     mean = imgs.mean(axis=0)
     var = imgs.var(axis=0, ddof=1) / groups
     if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(var))):
         raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
-    h, w = k.height, k.width
+    n_prop, n_acc = sum(r.proposed for r in runs), sum(r.accepted for r in runs)
+    n_large, n_acc_large = sum(r.large for r in runs), sum(r.accepted_large for r in runs)
     n_small = n_prop - n_large
+    bins_prop, bins_acc = sum(r.bins_proposed for r in runs), sum(r.bins_accepted for r in runs)
     by_imp = [(float(lo), int(bins_prop[i]), float(bins_acc[i] / bins_prop[i]) if bins_prop[i] else float("nan"))
               for i, lo in enumerate(np.concatenate([[0.0], _IMPORTANCE_BINS]))]
-    nboot = nb * groups
-    stats = {"time_s": time.perf_counter() - t0, "paths": int(nboot + n_prop + C), "nonfinite": nonfinite,
-             "no_light": not found}
+    b = np.array([r.b for r in runs])
+    running = sum(r.running for r in runs)
+    found = bool(np.any(b > 0))
+    C = sum(r.chains for r in runs)
+    nboot = sum(r.bootstrap for r in runs)
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(nboot + n_prop + running),
+             "nonfinite": sum(r.nonfinite for r in runs), "no_light": not found}
     return PSSMLTResult(
         mean.reshape(h, w, 3), var.reshape(h, w, 3), imgs.reshape(groups, h, w, 3), b, float(b.mean()), found,
-        C, steps, C * steps, nboot, float(large_step),
+        C, max(r.steps for r in runs), sum(r.chains * r.steps for r in runs), nboot, float(large_step),
         n_acc / n_prop if n_prop else 0.0,
         (n_acc - n_acc_large) / n_small if n_small else 0.0,
         n_acc_large / n_large if n_large else 0.0,
-        by_imp, longest, stuck, stats)
+        by_imp, max(r.longest_rejection_run for r in runs),
+        float(1.0 - sum(r.moved for r in runs) / running) if running else 1.0, stats)
+
+
+#: independent chain groups of a render through render.pathtracer.render (fewer when spp < GROUPS),
+#: and each group's chains and bootstrap samples (render_pssmlt's defaults divided by 16 groups)
+GROUPS = 16
+GROUP_CHAINS = 4096 // GROUPS
+GROUP_BOOTSTRAP = 100_000 // GROUPS
 
 
 def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None) -> RenderResult:
-    """:func:`render_pssmlt` as a :class:`render.film.RenderResult` (what render.pathtracer.render
-    returns for integrator 'pssmlt'): spp = mutations per pixel, settings.max_depth, .seed and
-    .heuristic; other parameters at their defaults.
+    """PSSMLT as a :class:`render.film.RenderResult` (what render.pathtracer.render returns for
+    integrator 'pssmlt'): spp = mutations per pixel, settings.max_depth, .seed and .heuristic.
 
-    The film holds the K group images as K samples per pixel (s1 = sum, s2 = sum of squares,
-    n = K), so its mean and variance are the render's. sample_range must start at 0: the
-    mutations are a Markov chain, so pssmlt renders of disjoint ranges do not merge and
-    refine() is not supported."""
+    A render of settings.spp is split into K = min(:data:`GROUPS`, spp) independent chain groups
+    over its sample range (:func:`render.film.group_ranges`); group g of samples [a_g, b_g)
+    runs (b_g - a_g) W H mutations with :data:`GROUP_CHAINS` chains and its own bootstrap of
+    :data:`GROUP_BOOTSTRAP` samples. ``sample_range`` (default (0, spp)) must start and end on
+    group boundaries (ValueError naming pssmlt otherwise, which also refuses refine()). The film
+    holds each group's image as one sample per pixel (n = groups), so its mean and variance are
+    the mean of the group images and the variance of that mean, and renders of whole groups
+    merge exactly in group order. stats (additive): time_s, paths, nonfinite, groups,
+    groups_without_light, chains, mutations, proposed, accepted."""
+    from .film import whole_groups
+
     a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
-    if a != 0 or b < 1:
-        raise ValueError(f"integrator 'pssmlt' is a Markov chain: its mutations cannot be split or refined "
-                         f"(sample_range must be (0, spp), got {(a, b)})")
+    ranges = whole_groups((a, b), settings.spp, GROUPS, "pssmlt")
+    t0 = time.perf_counter()
     eff = scene_effects(scene) if effects is None else frozenset(effects)
-    res = render_pssmlt(scene, camera, b, max_depth=settings.max_depth, seed=settings.seed, prepared=prepared,
-                        effects=eff, heuristic=2.0 if settings.heuristic == "power" else 1.0)
+    ps = prepared if prepared is not None else prepare(scene)
+    _check_supported(scene, ps, eff)
+    _check_arguments(settings.spp, settings.max_depth, 0.3)
     k = camera.intrinsics
-    K = res.groups.shape[0]
-    g = res.groups.reshape(K, -1, 3)
-    film = Film(k.width, k.height, g.sum(axis=0), (g * g).sum(axis=0), np.full(k.width * k.height, K, np.int64))
-    stats = dict(res.stats)
-    stats.update(b=res.b_mean, chains=res.chains, mutations=res.mutations, acceptance=res.acceptance,
-                 groups=K, found_light=res.found_light)
-    return RenderResult(res.mean.astype(np.float32), res.variance.astype(np.float32), b, (0, b), film, "pssmlt",
-                        stats)
+    npix = k.width * k.height
+    first = [r[0] for r in group_ranges(settings.spp, GROUPS)]
+    film = Film(k.width, k.height)
+    stats = {"paths": 0, "nonfinite": 0, "groups": 0, "groups_without_light": 0, "chains": 0, "mutations": 0,
+             "proposed": 0, "accepted": 0}
+    for g0, g1 in ranges:
+        run = _run_group(ps, camera, first.index(g0), (g1 - g0) * npix, GROUP_CHAINS, GROUP_BOOTSTRAP,
+                         settings.max_depth, settings.seed, 0.3, "caustics" in eff,
+                         2.0 if settings.heuristic == "power" else 1.0)
+        if not np.all(np.isfinite(run.image)):
+            raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
+        film.add_moments(run.image, run.image * run.image, np.ones(npix, np.int64))
+        stats["paths"] += run.bootstrap + run.proposed + run.running
+        stats["nonfinite"] += run.nonfinite
+        stats["groups"] += 1
+        stats["groups_without_light"] += int(run.b <= 0)
+        stats["chains"] += run.chains
+        stats["mutations"] += run.chains * run.steps
+        stats["proposed"] += run.proposed
+        stats["accepted"] += run.accepted
+    stats["time_s"] = time.perf_counter() - t0
+    return RenderResult.from_film(film, (a, b), "pssmlt", stats)

@@ -32,11 +32,20 @@ them from the light instead. Each pass (pbrt-v3's SPPMIntegrator, whose structur
 
 After P passes of N_e photons: L = direct_sum / P + tau / (P N_e pi R^2). The estimate is
 *consistent, not unbiased* (the density estimate blurs over the radius, which shrinks as
-P^((alpha - 1) / 2) where photons land), so there is no per-pixel sample variance: the
-:class:`render.film.RenderResult` that :func:`render.pathtracer.render` returns for sppm has a
-zero variance image, and sppm renders of disjoint sample ranges do not merge (progressive
-statistics are a chain, not a sum). :class:`SPPMResult` keeps the direct term's own variance,
-the per-pixel radii and photon counts, and a per-pass history.
+P^((alpha - 1) / 2) where photons land), and one progressive run has no per-pixel sample
+variance (its passes are a chain, not a sum). :class:`SPPMResult` keeps the direct term's own
+variance, the per-pixel radii and photon counts, and a per-pass history.
+
+**Independent groups** (what :func:`render.pathtracer.render` and the ``reference`` stage run):
+a render of ``spp`` passes is split into K = min(:data:`GROUPS`, spp) groups of consecutive
+passes (:func:`render.film.group_ranges`), each an independent progressive run with its own
+random streams (pass indices are global, so group g's passes draw what they would in any split)
+and its own radius schedule starting from the initial radius. The image is the mean of the K
+group images and its variance image the sample variance of the group images / K (K - 1 degrees
+of freedom). That variance measures *noise only*: every group shares the same blur bias (that of
+a spp / K pass run, larger than one run of spp passes would have), which no spread between
+groups can show. A unit of work is a run of whole groups, so renders of whole groups merge and
+batches and workers give the same bytes.
 
 Max depth counts scattering events as in :mod:`render.pathtracer`: a path of k specular eye
 bounces, the visible point and a photon that scattered d times before landing has k + 1 + d
@@ -45,7 +54,8 @@ bounces and is counted only if that is <= max_depth (NEE: k + 1, emission seen: 
 Shading uses geometric normals; Lambertian and mirror surfaces are two-sided, dielectrics and
 emitters are not, as everywhere in :mod:`render`. GGX materials and participating media are
 not supported (ValueError naming sppm). Random numbers: a numpy Generator per pass seeded by
-(seed, pass, stream): a render is a pure function of (scene, camera, passes, photons, seed).
+(seed, global pass index, stream): a render is a pure function of (scene, camera, passes,
+photons, seed) and of its group split.
 Secondary rays start at :func:`render.accel.spawn_origin` offsets (as volpath).
 """
 from __future__ import annotations
@@ -62,10 +72,13 @@ from .camera import Camera
 from .lights import sample_emission
 from .sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
 
-__all__ = ["SPPMResult", "render_sppm", "ALPHA"]
+__all__ = ["SPPMResult", "render_sppm", "render_result", "ALPHA", "GROUPS"]
 
 #: Hachisuka and Jensen's (and pbrt's) fraction of new photons kept per pass
 ALPHA = 2.0 / 3.0
+#: independent groups a render's passes are split into (fewer when spp < GROUPS): 8 gives the
+#: variance image 7 degrees of freedom while each group keeps 1/8 of the passes to shrink its radii
+GROUPS = 8
 #: visible points per gather query (bounds the pair arrays' memory)
 _GATHER_CHUNK = 2048
 #: radius classes of the gather, a factor sqrt(2) apart
@@ -332,7 +345,7 @@ def _gather(vp: dict, radius: np.ndarray, ph: dict, max_depth: int) -> tuple[np.
 # ---------------------------------------------------------------- the integrator
 def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
                 max_depth: int = 8, seed: int = 0, accel=None, *, prepared=None, alpha: float = ALPHA,
-                caustics: bool = True, callback=None) -> SPPMResult:
+                caustics: bool = True, callback=None, first_pass: int = 0) -> SPPMResult:
     """Render ``camera``'s view of ``scene`` by stochastic progressive photon mapping.
 
     passes: eye + photon passes (the image converges as passes grow). photons_per_pass: photons
@@ -345,14 +358,17 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     new photons kept per pass (0 < alpha < 1). caustics: False drops photons that scattered off
     a specular surface (what the other integrators prune). callback: optional
     ``callback(pass_done, image (H, W, 3) float64, radius (H, W) float64)`` after every pass,
-    with the estimate so far (for convergence studies).
+    with the estimate so far (for convergence studies). first_pass: global index of the first
+    pass (its random streams are keyed by it): a group of passes [first_pass, first_pass +
+    passes) draws the same numbers whatever else is rendered.
     """
     from .pathtracer import PreparedScene, prepare
 
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
-    if passes < 1 or photons_per_pass < 1 or max_depth < 0:
-        raise ValueError("sppm: passes and photons_per_pass must be >= 1, max_depth >= 0")
+    first_pass = int(first_pass)
+    if passes < 1 or photons_per_pass < 1 or max_depth < 0 or first_pass < 0:
+        raise ValueError("sppm: passes and photons_per_pass must be >= 1, max_depth and first_pass >= 0")
     if not 0.0 < alpha < 1.0:
         raise ValueError(f"sppm: alpha must lie in (0, 1), got {alpha}")
     if initial_radius is not None and not (np.isfinite(initial_radius) and initial_radius > 0):
@@ -393,8 +409,8 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
 
     for it in range(passes):
         tp = time.perf_counter()
-        rng_eye = np.random.default_rng([seed32, it, 0])
-        rng_ph = np.random.default_rng([seed32, it, 1])
+        rng_eye = np.random.default_rng([seed32, first_pass + it, 0])
+        rng_ph = np.random.default_rng([seed32, first_pass + it, 1])
         direct, vp, nr = _eye_pass(ps, camera, rng_eye, max_depth)
         rays += nr
         nee, nsh = _direct_at_visible_points(ps, vp, rng_eye)
@@ -439,29 +455,31 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
 
 
 def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None):
-    """:func:`render_sppm` as a :class:`render.film.RenderResult` (what render.pathtracer.render
-    returns): spp = passes, photons per pass from ``settings.photons_per_pass``.
+    """SPPM as a :class:`render.film.RenderResult` (what render.pathtracer.render returns): the
+    independent groups of passes (module docstring) that ``sample_range`` covers, of a render of
+    ``settings.spp`` passes; photons per pass from ``settings.photons_per_pass``.
 
-    The variance image is zero (no unbiased per-pixel variance exists for SPPM) and the film
-    holds mean x passes with zero spread; sample_range must start at 0 (progressive passes are
-    a chain: sppm renders of disjoint ranges do not merge, and refine() is not supported)."""
-    from .film import Film, RenderResult
+    sample_range (default (0, settings.spp)) must start and end on group boundaries
+    (:func:`render.film.whole_groups`; ValueError naming sppm otherwise, which also refuses
+    refine()). The film holds each group's image as one sample per pixel (n = groups), so its
+    mean is the mean of the group images and its variance the variance of that mean across
+    groups: noise, not the bias every group shares. stats: time_s, paths (camera + photon
+    paths), rays, groups, photons (emitted), all additive."""
+    from .film import Film, RenderResult, whole_groups
 
     a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
-    if a != 0 or b < 1:
-        raise ValueError(f"integrator 'sppm' is progressive: its passes cannot be split or refined "
-                         f"(sample_range must be (0, passes), got {(a, b)})")
+    groups = whole_groups((a, b), settings.spp, GROUPS, "sppm")
     caustics = True if effects is None else "caustics" in frozenset(effects)
-    res = render_sppm(scene, camera, b, settings.photons_per_pass, max_depth=settings.max_depth, seed=settings.seed,
-                      prepared=prepared, caustics=caustics)
     k = camera.intrinsics
     film = Film(k.width, k.height)
-    m = res.mean.reshape(-1, 3)
-    film.n[:] = b
-    film.s1[:] = m * b
-    film.s2[:] = film.s1 * film.s1 / b
-    stats = dict(res.stats)
-    stats["photons_per_pass"] = int(settings.photons_per_pass)
-    stats["mean_final_radius"] = float(res.radius.mean())
-    return RenderResult(res.mean.astype(np.float32), np.zeros((k.height, k.width, 3), np.float32), b, (0, b), film,
-                        "sppm", stats)
+    stats = {"time_s": 0.0, "paths": 0, "rays": 0, "groups": 0, "photons": 0}
+    for g0, g1 in groups:
+        res = render_sppm(scene, camera, g1 - g0, settings.photons_per_pass, max_depth=settings.max_depth,
+                          seed=settings.seed, prepared=prepared, caustics=caustics, first_pass=g0)
+        image = res.mean.reshape(-1, 3)
+        film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
+        for key in ("time_s", "paths", "rays"):
+            stats[key] += res.stats[key]
+        stats["groups"] += 1
+        stats["photons"] += (g1 - g0) * int(settings.photons_per_pass)
+    return RenderResult.from_film(film, (a, b), "sppm", stats)

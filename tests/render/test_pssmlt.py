@@ -281,14 +281,15 @@ def test_hard_case_bootstrap_finds_no_light():
     """Hard case: the bootstrap finds no light. The slit closed and the background black: the
     lamp lights only the back of the wall, which the camera cannot see. PSSMLT returns a black,
     finite image with zero variance and says so (found_light False, stats no_light), never NaN;
-    so does render(integrator='pssmlt')."""
+    so does render(integrator='pssmlt') (every group counted in stats groups_without_light)."""
     sc, cam = _slit_scene(slit=False, background=0.0)
     ps = prepare(sc)
     res = render_pssmlt(sc, cam, 4, seed=42, prepared=ps, n_bootstrap=4096)
     assert not res.found_light and res.stats["no_light"] and np.all(res.b == 0)
     assert np.all(res.mean == 0) and np.all(res.variance == 0) and res.stuck_fraction == 1.0
     r = render(sc, cam, RenderSettings(integrator="pssmlt", spp=2, seed=42), prepared=ps)
-    assert r.stats["no_light"] and np.all(r.mean == 0) and np.all(r.variance == 0)
+    assert r.stats["groups_without_light"] == r.stats["groups"] == 2
+    assert np.all(r.mean == 0) and np.all(r.variance == 0)
     assert np.all(np.isfinite(r.mean)) and r.mean.dtype == np.float32
 
 

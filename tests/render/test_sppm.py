@@ -2,7 +2,8 @@
 photon density estimate), consistency with ``path`` on the glass caustic with bias falling as
 passes grow, the hard case of radii shrinking towards zero, and unsupported effects. Fixed seeds.
 
-SPPM is consistent, not unbiased, and has no per-pixel variance: tolerances are stated per test
+SPPM is consistent, not unbiased; one progressive run has no per-pixel variance (render() gives
+the spread of independent groups, noise only): tolerances are stated per test
 from the photon counts, the reference's own standard error and the measured seed-to-seed spread.
 """
 from __future__ import annotations
@@ -150,21 +151,37 @@ def test_unsupported_effects_raise_naming_sppm():
 
 
 def test_render_wiring_determinism_and_auto():
-    """integrator='sppm' through render(): a finite image with a zero variance image, spp =
-    passes; deterministic for a seed; refine (split passes) is refused; auto never picks sppm;
-    point-light caustics, unreachable by path, are accepted by sppm."""
+    """integrator='sppm' through render(): spp = passes split into independent groups
+    (min(GROUPS, spp), here 3 of one pass each), a finite image whose variance image is the
+    variance of the mean across groups (> 0 where groups differ, equal to the film's); group g
+    is render_sppm over passes [g, g + 1) (its own streams and radius schedule); renders of
+    whole groups merge to the same bytes; deterministic for a seed; a range splitting a group,
+    and refine, are refused naming sppm; auto never picks sppm; point-light caustics,
+    unreachable by path, are accepted by sppm."""
+    from render.film import merge_results
+    from render.sppm import GROUPS
+
     sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(8, 8, 45.0), cam.cam_to_world, "tiny")
     ps = prepare(sc)
     st = RenderSettings(integrator="sppm", spp=3, photons_per_pass=5_000, seed=11)
     a = render(sc, cam, st, prepared=ps)
+    assert GROUPS >= 3 and a.stats["groups"] == 3 and a.film.n.max() == 3
     assert a.integrator == "sppm" and a.spp == 3 and a.mean.dtype == np.float32
-    assert np.all(np.isfinite(a.mean)) and np.all(a.variance == 0) and a.mean.max() > 0
+    assert np.all(np.isfinite(a.mean)) and a.mean.max() > 0 and a.variance.max() > 0
+    assert np.array_equal(a.film.variance(), a.variance)
     assert np.array_equal(render(sc, cam, st, prepared=ps).mean, a.mean)
     acc = Accel(sc, threads=1, geometry=ps.geom)
-    assert np.array_equal(render_sppm(sc, cam, 3, 5_000, seed=11, accel=acc).mean.astype(np.float32), a.mean)
+    groups = [render_sppm(sc, cam, 1, 5_000, seed=11, accel=acc, first_pass=g).mean for g in range(3)]
+    assert np.array_equal(((groups[0] + groups[1]) + groups[2]) / 3.0, a.film.s1.reshape(8, 8, 3) / 3.0)
+    parts = [render(sc, cam, st, sample_range=r, prepared=ps) for r in ((0, 1), (1, 3))]
+    assert parts[1].stats["groups"] == 2
+    merged = merge_results(*parts)
+    assert merged.mean.tobytes() == a.mean.tobytes() and merged.variance.tobytes() == a.variance.tobytes()
     assert not np.array_equal(render(sc, cam, RenderSettings(integrator="sppm", spp=3, photons_per_pass=5_000,
                                                              seed=12), prepared=ps).mean, a.mean)
+    with pytest.raises(ValueError, match="sppm"):
+        render(sc, cam, RenderSettings(integrator="sppm", spp=16, photons_per_pass=10), sample_range=(0, 1), prepared=ps)
     with pytest.raises(ValueError, match="sppm"):
         refine(a, sc, cam, st, 2, prepared=ps)
     for eff in ({"direct"}, {"direct", "caustics"}, {"direct", "interreflection", "specular", "caustics"}):
