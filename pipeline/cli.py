@@ -75,7 +75,7 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
 def reference(scene: str = typer.Argument(..., help="built-in scene name or path to a scene YAML"),
               spp: int = typer.Option(64, help="samples per pixel"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
-              views: str = typer.Option("test", help="test (held-out views) | all | scene (the scene's own camera)"),
+              views: str = typer.Option("auto", help="auto (test views if the scene has them, else its scene camera) | test | all | scene"),
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),

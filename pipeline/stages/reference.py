@@ -9,14 +9,24 @@ Layout::
     reference/manifest.json         spp, integrator, effects, per-view time and noise
 
 View names match the capture's, so any two stages' images of a view pair up by name.
-A view is rendered in fixed batches of SAMPLE_BATCH samples (the units of work), whose film
-moments are summed by a left fold in sample order (as render.film.merge_results does), so the
-result does not depend on where or in how many processes the batches ran: byte-identical
+Views (``--views``): auto (the default) renders the held-out ``test`` views when the scene has
+them, else its ``scene`` camera; test, all (train + test) and scene choose explicitly.
+
+A view is rendered in fixed units of work (render.pathtracer.work_units): batches of
+SAMPLE_BATCH samples, or for sppm and pssmlt their independent groups of passes / chains. Their
+film moments are summed by a left fold in sample order (as render.film.merge_results does), so
+the result does not depend on where or in how many processes the units ran: byte-identical
 outputs in process and on a Dask cluster of any size (pipeline.distributed). The progress bar
-moves per batch.
+moves per unit. Stats are folded by render.film.merge_stats (integrators report different
+counters: volpath and pssmlt count no rays, so ``rays_per_s`` is null for them).
+
+What cannot fit is refused before anything is allocated (BadInput, exit 2): --spp above
+MAX_SPP, and a view whose film needs more than the available memory (BYTES_PER_PIXEL per pixel
+per worker against MemAvailable).
 """
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,7 +35,7 @@ import numpy as np
 from render import pathtracer
 from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
-from render.film import Film, RenderResult
+from render.film import Film, merge_stats
 from render.image_io import write_exr, write_preview
 from rig.build import RigScene
 
@@ -33,11 +43,22 @@ from ..artifacts import BadInput, Manifest, atomic_stage
 from ..distributed import ClusterConfig, engine, worker_cache
 from ..progress import progress_bar
 
-__all__ = ["run_reference", "select_views", "resize_camera", "render_batch", "fold_batches", "finish_view", "SAMPLE_BATCH"]
+__all__ = ["run_reference", "select_views", "resize_camera", "render_batch", "fold_batches", "finish_view",
+           "check_fits", "available_memory", "SAMPLE_BATCH", "MAX_SPP", "BYTES_PER_PIXEL"]
 
 #: samples per pixel rendered per unit of work; fixed, so results never depend on the split
 SAMPLE_BATCH = 8
-VIEW_CHOICES = ("test", "all", "scene")
+VIEW_CHOICES = ("auto", "test", "all", "scene")
+#: the largest --spp: every unit of a view is scheduled up front (Dask keeps a future per unit),
+#: so 65536 spp is 8192 units per view; 8x the largest reference the project renders (8192 spp)
+MAX_SPP = 1 << 16
+#: memory one view costs per pixel while it renders, per worker (bytes): the fold's films
+#: (accumulated, incoming, merged: 3 x 56 B of float64 moments and int64 counts), the float32
+#: mean and variance and their EXR / PNG encodings (~100 B), and the integrators' own per-pixel
+#: arrays, measured as tracemalloc's peak slope from 256^2 to 512^2 on cornell (8 spp): sppm
+#: 308, pssmlt 181, bdpt 121, volpath 85 B/px (path and direct trace fixed-size batches). Their
+#: sum (~600 B) doubled for what tracemalloc does not see (Embree, numba)
+BYTES_PER_PIXEL = 1024
 
 
 def resize_camera(cam: Camera, width: int, height: int) -> Camera:
@@ -50,14 +71,68 @@ def resize_camera(cam: Camera, width: int, height: int) -> Camera:
 
 
 def select_views(rig: RigScene, views: str) -> list[tuple[str, Camera]]:
-    """(split, camera) pairs for ``views`` in test | all | scene; BadInput when there are none."""
+    """(split, camera) pairs for ``views`` in auto | test | all | scene; BadInput when there are
+    none. auto: the test views when the scene has any, else its scene camera."""
     if views not in VIEW_CHOICES:
         raise BadInput(f"--views must be one of {', '.join(VIEW_CHOICES)}, got '{views}'")
+    if views == "auto":
+        views = "test" if rig.cameras.get("test") else "scene" if rig.cameras.get("scene") else "test"
     splits = {"test": ("test",), "all": ("train", "test"), "scene": ("scene",)}[views]
     chosen = [(s, c) for s in splits for c in rig.cameras.get(s, [])]
     if not chosen:
         raise BadInput(f"scene '{rig.scene.name}' has no '{views}' views (it has: {', '.join(sorted(rig.cameras))})")
     return chosen
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new allocations on this machine: /proc/meminfo's
+    MemAvailable (page cache that can be reclaimed counts), else free physical pages
+    (os.sysconf); None when neither is known."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2 ** 40:.1f} TiB" if n >= 2 ** 40 else f"{n / 2 ** 30:.1f} GiB"
+
+
+def _workers_here(cluster) -> int:
+    """Processes on this machine that may each hold a view's film at once."""
+    from ..distributed import DaskEngine, LocalEngine
+
+    if cluster is None or isinstance(cluster, LocalEngine):
+        return 1
+    if isinstance(cluster, DaskEngine):
+        return cluster.workers if cluster.name == "dask local cluster" else 1
+    return 1 if cluster.in_process or cluster.address else max(1, cluster.local_workers)
+
+
+def check_fits(chosen: list[tuple[str, Camera]], size: tuple[int, int] | None, workers: int,
+               available: int | None) -> None:
+    """BadInput (one line naming --size or the view, and the bound) when the largest chosen view
+    needs more than ``available`` bytes: pixels x BYTES_PER_PIXEL x ``workers``. Nothing is
+    allocated here; ``available`` None skips the check."""
+    if available is None or not chosen:
+        return
+    cam = max((c for _, c in chosen), key=lambda c: c.intrinsics.width * c.intrinsics.height)
+    w, h = cam.intrinsics.width, cam.intrinsics.height
+    need = w * h * BYTES_PER_PIXEL * workers
+    if need <= available:
+        return
+    what = f"--size {w} {h}" if size is not None else f"view '{cam.name}' ({w} x {h} from the scene's cameras)"
+    fit = available / (BYTES_PER_PIXEL * workers) / 1e6
+    raise BadInput(f"{what}: a view needs about {_gib(need)} to render ({BYTES_PER_PIXEL} B per pixel x "
+                   f"{workers} worker{'s' * (workers > 1)}), more than the {_gib(available)} available; at most "
+                   f"{fit:.0f} megapixels per view fit{'' if size is not None else ' (pass a smaller --size)'}")
 
 
 def render_batch(scene, scene_key: str, cam: Camera, settings: pathtracer.RenderSettings,
@@ -76,8 +151,7 @@ def fold_batches(acc: tuple[Film, dict], part: tuple[Film, dict]) -> tuple[Film,
     """Merge the next batch (in sample order) into the accumulated moments: the same sums, in
     the same order, as render.film.merge_results."""
     (fa, sa), (fb, sb) = acc, part
-    stats = {k: sa.get(k, 0) + sb.get(k, 0) for k in set(sa) | set(sb)}
-    return fa.merged(fb), stats
+    return fa.merged(fb), merge_stats(sa, sb)
 
 
 def finish_view(acc: tuple[Film, dict]) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -88,20 +162,24 @@ def finish_view(acc: tuple[Film, dict]) -> tuple[np.ndarray, np.ndarray, dict]:
 
 
 def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, size: tuple[int, int] | None = None,
-                  views: str = "test", integrator: str = "auto", seed: int = 0, max_depth: int = 8,
+                  views: str = "auto", integrator: str = "auto", seed: int = 0, max_depth: int = 8,
                   quiet: bool = False, cluster: ClusterConfig | None = None) -> dict:
     """Render the chosen views with the path tracer into ``out`` atomically; returns the manifest.
+
+    views: auto | test | all | scene (:func:`select_views`). spp is bounded by MAX_SPP and each
+    view's memory by :func:`check_fits`, both before anything is allocated.
 
     cluster: where the batches run (pipeline.distributed): None (default) in this process; a
     :class:`ClusterConfig` for a local or existing Dask cluster. The output files are the same
     bytes either way."""
-    if spp < 1:
-        raise BadInput(f"--spp must be at least 1, got {spp}")
+    if not 1 <= spp <= MAX_SPP:
+        raise BadInput(f"--spp must lie in [1, {MAX_SPP}], got {spp}")
     if size is not None and (size[0] < 1 or size[1] < 1):
         raise BadInput(f"--size must be positive, got {size[0]} x {size[1]}")
     chosen = select_views(rig, views)
     if size is not None:
         chosen = [(s, resize_camera(c, *size)) for s, c in chosen]
+    check_fits(chosen, size, _workers_here(cluster), available_memory())
     try:
         settings = pathtracer.RenderSettings(integrator=integrator, spp=spp, seed=seed, max_depth=max_depth)
     except ValueError as exc:
@@ -116,12 +194,13 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         raise BadInput(f"--integrator: {exc}") from None
     settings = replace(settings, integrator=chosen_integrator)
     manifest = Manifest("reference", params={
-        "scene": rig.scene.name, "views": views, "spp": spp, "seed": seed, "max_depth": max_depth,
+        "scene": rig.scene.name, "views": views, "splits": sorted({s for s, _ in chosen}), "spp": spp, "seed": seed, "max_depth": max_depth,
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)
-    batches = [(a, min(a + SAMPLE_BATCH, spp)) for a in range(0, spp, SAMPLE_BATCH)]
-    per_view, totals = {}, {"paths": 0, "rays": 0, "time_s": 0.0}
+    batches = pathtracer.work_units(chosen_integrator, spp, SAMPLE_BATCH)  # spp <= MAX_SPP: a bounded list
+    manifest.params["units_per_view"] = len(batches)
+    per_view, totals = {}, {}
     with atomic_stage(out) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
         task = bar.add_task(f"reference {rig.scene.name}", total=len(chosen) * len(batches),
                             info=f"{chosen_integrator}, {spp} spp")
@@ -138,16 +217,20 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
             write_preview(tmp / "images" / f"{name}.png", mean)
             per_view[name] = {"time_s": round(stats["time_s"], 3), "mean_radiance": float(mean.mean()),
                               "mean_stderr": float(np.sqrt(variance).mean())}
-            for k in totals:
-                totals[k] += stats[k]
+            totals[name] = stats
 
         units = [[(scene.key, cam, settings, rng, effects) for rng in batches] for _, cam in chosen]
         eng.fold_groups(render_batch, units, fold_batches, finish_view, shared=[scene], name="reference-batch",
                         on_unit=lambda: bar.advance(task), on_group=write_view)
-        seconds = totals["time_s"]
+        stats = {}
+        for name in sorted(totals):  # view order never changes the sums' bytes
+            stats = merge_stats(stats, totals[name])
+        seconds = stats.get("time_s", 0.0)
+        counted_rays = all("rays" in st for st in totals.values())  # volpath and pssmlt count none
         write_cameras_json(tmp / "cameras.json", [c for _, c in chosen], [s for s, _ in chosen])
-        manifest.metrics = {"views": len(chosen), "paths_per_s": totals["paths"] / max(seconds, 1e-9),
-                            "rays_per_s": totals["rays"] / max(seconds, 1e-9), "render_time_s": round(seconds, 3),
+        manifest.metrics = {"views": len(chosen), "paths_per_s": stats.get("paths", 0) / max(seconds, 1e-9),
+                            "rays_per_s": stats["rays"] / max(seconds, 1e-9) if counted_rays else None,
+                            "render_time_s": round(seconds, 3),
                             "per_view": per_view, "engine": eng.name, "workers": eng.workers}
         result_manifest = manifest.write(tmp)
     return result_manifest
