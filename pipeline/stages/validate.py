@@ -39,7 +39,9 @@ independent of the model, E[(model - ref)^2] = (model - truth)^2 + var_ref, so p
   1 - alpha.
 
 These noise figures use unclipped linear radiance; ``psnr`` and ``ssim`` are
-:mod:`render.metrics`' (images clipped to [0, 1]), as every stage reports them.
+:mod:`render.metrics`' (images clipped to [0, 1]), as every stage reports them. Every PSNR here
+follows render.metrics' convention: an MSE of 0 (identical images, an exact reference) gives
+the finite cap PSNR_MAX_DB = 100 dB, never infinity or null.
 
 Time. ``time_s`` is the model stage's own wall time (its manifest); ``upstream_s`` adds what it
 needed before: the capture's wall time, and the poses stage's when the model read estimated
@@ -61,7 +63,7 @@ from scipy.stats import norm
 from render.camera_io import read_cameras_json
 from render.color import to_srgb8
 from render.image_io import atomic_path, read_exr, write_png
-from render.metrics import psnr, ssim
+from render.metrics import mse_to_psnr, psnr, ssim
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, read_manifest, write_json
 from ..progress import progress_bar
@@ -175,19 +177,18 @@ def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: V
     d = render.astype(np.float64) - ref
     mse = float(np.mean(d * d))
     noise = float(np.mean(np.maximum(var, 0.0), dtype=np.float64))
-    p = psnr(render, ref)
     z_crit = float(norm.ppf(1.0 - config.alpha / 2.0))
     z = z_scores(render, ref, var, config.sigma_floor)
     excess = mse - noise
     return {
-        "psnr": p if math.isfinite(p) else None,  # identical images: no finite PSNR
+        "psnr": psnr(render, ref),  # identical images: render.metrics.PSNR_MAX_DB
         "ssim": ssim(render, ref),
         "rmse": math.sqrt(mse),
         "mse": mse,
         "noise_mse": noise,
         "noise_share": min(1.0, noise / mse) if mse > 0 else 1.0,
-        "psnr_noise_ceiling": 10.0 * math.log10(1.0 / noise) if noise > 0 else None,
-        "psnr_truth_est": 10.0 * math.log10(1.0 / excess) if excess > 0 else None,
+        "psnr_noise_ceiling": mse_to_psnr(noise),
+        "psnr_truth_est": mse_to_psnr(excess) if excess > 0 else None,  # None: the error is within noise
         "within_noise": bool(excess <= 0),
         "z_within_fraction": float(np.mean(z <= z_crit)),
     }
@@ -355,7 +356,7 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
     ref_noise = {v: float(np.mean(var, dtype=np.float64)) for v, (_, var) in refs.items()}
     reference = {"spp": rp.get("spp"), "integrator": rp.get("integrator"), "views": len(views),
                  "wall_time_s": ref_manifest.get("wall_time_s"),
-                 "per_view": {v: {"noise_mse": n, "psnr_noise_ceiling": 10 * math.log10(1 / n) if n > 0 else None}
+                 "per_view": {v: {"noise_mse": n, "psnr_noise_ceiling": mse_to_psnr(n)}
                               for v, n in ref_noise.items()}}
     reference["psnr_noise_ceiling_mean"] = _mean([p["psnr_noise_ceiling"] for p in reference["per_view"].values()])
     # what an empty (black) image scores: a model must beat this to have rendered anything

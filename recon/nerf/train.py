@@ -25,7 +25,7 @@ from torch import nn
 
 from render.camera import Camera
 from render.image_io import atomic_path
-from render.metrics import psnr, ssim
+from render.metrics import mse_to_psnr, psnr, ssim  # one PSNR convention (capped at PSNR_MAX_DB)
 
 from .data import NerfData, camera_rays, stack_rays
 from .models import MODELS, make_model
@@ -73,11 +73,6 @@ class TrainResult:
     steps: int
     train_s: float
     curve: list[dict] = field(default_factory=list)
-
-
-def mse_to_psnr(mse: float) -> float:
-    """PSNR in dB of a mean squared error of [0, 1] images (capped at 100 dB for mse = 0)."""
-    return 100.0 if mse <= 1e-10 else float(-10.0 * math.log10(mse))
 
 
 @torch.no_grad()

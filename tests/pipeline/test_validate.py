@@ -144,10 +144,14 @@ def test_a_biased_model_is_told_apart_from_reference_noise():
 
 
 def test_identical_and_zero_variance_images_stay_finite():
-    """Hard case: model == reference with zero variance (a black background): no Inf or NaN."""
+    """Hard case: model == reference with zero variance (a black background): no Inf or NaN; both
+    PSNRs are render.metrics' finite cap PSNR_MAX_DB, the truth estimate null (within noise)."""
+    from render.metrics import PSNR_MAX_DB
+
     ref = np.zeros((8, 8, 3), np.float32)
     m = compare_view(ref, ref, np.zeros_like(ref))
-    assert m["psnr"] is None and m["psnr_noise_ceiling"] is None and m["z_within_fraction"] == 1.0
+    assert m["psnr"] == m["psnr_noise_ceiling"] == PSNR_MAX_DB and m["z_within_fraction"] == 1.0
+    assert m["psnr_truth_est"] is None and m["within_noise"]
     json.dumps(m, allow_nan=False)
 
 

@@ -46,7 +46,7 @@ def test_psnr_matches_its_closed_form_and_ssim_ranks_degradations():
     shifted = ref + 0.01
     assert np.isclose(psnr(shifted, ref), 10 * np.log10(1.0 / 1e-4), atol=1e-6)  # MSE 1e-4 -> 40 dB
     assert np.isclose(rmse(shifted, ref), 0.01)
-    assert psnr(ref, ref) == float("inf")
+    assert psnr(ref, ref) == 100.0  # render.metrics.PSNR_MAX_DB (tests/render/test_metrics.py)
     assert np.isclose(ssim(ref, ref), 1.0, atol=1e-6)
     mild = ref + rng.normal(0, 0.02, ref.shape)
     strong = ref + rng.normal(0, 0.1, ref.shape)

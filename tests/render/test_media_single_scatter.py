@@ -15,7 +15,8 @@ with w the unit direction from x(t) to the light point, r the distance, p the
 Henyey-Greenstein phase function of cos = d . w (render.media's convention: d is the ray's
 travel direction; light arriving along -w and leaving towards the camera along -d has
 scattering cosine (-w) . (-d), so g > 0 favours vertices lit from ahead of the ray),
-T_cam(t) = exp(-sigma_t (t - t_in)) and T_box(x, y) = exp(-sigma_t l) with l the exact length of the segment x -> y inside the box (the light is outside: the segment crosses the boundary
+T_cam(t) = exp(-sigma_t (t - t_in)) and T_box(x, y) = exp(-sigma_t l) with l the exact length
+of the segment x -> y inside the box (the light is outside: the segment crosses the boundary
 once, and only the medium part attenuates). scipy's adaptive quadrature in t (relative 1e-10)
 and a composite Gauss-Legendre rule over the light (converged to 1e-9 relative, checked below)
 evaluate them.
