@@ -1,6 +1,7 @@
 """Turn a validated :class:`rig.spec.SceneSpec` into the render scene model and cameras."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,9 +14,9 @@ from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Me
                           Scene, SceneObject, SpotLight)
 
 from .layouts import layout_cameras, make_intrinsics
-from .spec import (DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, RoughConductorSpec,
+from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, RoughConductorSpec,
                    RoughDielectricSpec, SceneSpec,
-                   ShapeSpec, SpecError, SpotLightSpec, load_spec, resolve_scene_path)
+                   ShapeSpec, SpecError, SpotLightSpec, load_spec, resolve_file, resolve_scene_path)
 from .textures import load_texture
 from .volumes import load_density_file, smoke_density
 
@@ -80,18 +81,25 @@ def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) ->
         return m
     if shape.quad is not None:
         return quad_mesh(shape.quad.corners)
-    path = Path(shape.mesh.file)
-    path = path if path.is_absolute() else base_dir / path
-    if not path.is_file():
-        raise SpecError(f"{where}.mesh.file: file not found: {path}")
-    try:
-        m = trimesh.load(path, force="mesh")
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise SpecError(f"{where}.mesh.file: cannot read {path}: {exc}") from None
-    if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
-        raise SpecError(f"{where}.mesh.file: {path} holds no triangles")
+    path = resolve_file(base_dir, shape.mesh.file, f"{where}.mesh.file")
+    # numpy's overflow warnings on hostile files would add lines to the one-line error
+    with np.errstate(all="ignore"):
+        try:
+            m = trimesh.load(path, force="mesh")
+        except Exception as exc:  # trimesh raises many types for unreadable files
+            why = " ".join(str(exc).split()) or type(exc).__name__
+            raise SpecError(f"{where}.mesh.file: cannot read {path}: {why}") from None
+        if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+            raise SpecError(f"{where}.mesh.file: {path} holds no triangles")
+        placed = m.vertices * shape.mesh.scale + np.asarray(shape.mesh.translate)
+        if not np.all(np.abs(placed) <= MAX_MAGNITUDE):  # False for NaN too
+            raise SpecError(f"{where}.mesh: {path} has vertices that are not finite or beyond +-{MAX_MAGNITUDE:.0e} "
+                            "(after scale and translate)")
     m.apply_scale(shape.mesh.scale)
     m.apply_translation(shape.mesh.translate)
+    # finite vertices (above) with at least one triangle of non-zero area: else the subject would vanish
+    if not np.any(m.area_faces > 0):
+        raise SpecError(f"{where}.mesh.file: {path} holds only zero-area triangles")
     return m
 
 
@@ -102,10 +110,7 @@ def _density(medium, up: np.ndarray, base_dir: Path, where: str) -> np.ndarray |
         return None
     if d.smoke is not None:
         return smoke_density(d.smoke.resolution, d.smoke.seed, d.smoke.octaves, up_axis=int(np.argmax(np.abs(up))))
-    path = Path(d.file)
-    path = path if path.is_absolute() else base_dir / path
-    if not path.is_file():
-        raise SpecError(f"{where}.file: density file not found: {path}")
+    path = resolve_file(base_dir, d.file, f"{where}.file")
     try:
         return load_density_file(path)
     except ValueError as exc:
@@ -128,14 +133,14 @@ def _material(spec, textures: dict[str, np.ndarray]):
     raise TypeError(spec)
 
 
-def _board_to_world(corners: np.ndarray, board) -> np.ndarray:
+def _board_to_world(corners: np.ndarray, board, where: str) -> np.ndarray:
     """OpenCV board frame (origin at the image's top-left corner, x right, y down the image,
     z into the board) for a board texture on a quad whose corner 3 is the image's top-left."""
     x = corners[2] - corners[3]
     y = corners[0] - corners[3]
     width, height = board.squares[0] * board.square_length, board.squares[1] * board.square_length
     if not (np.isclose(np.linalg.norm(x), width, rtol=1e-6) and np.isclose(np.linalg.norm(y), height, rtol=1e-6)):
-        raise SpecError(f"charuco board is {width} x {height} but its quad is "
+        raise SpecError(f"{where}.shape.quad.corners: the charuco board is {width:.6g} x {height:.6g} but its quad is "
                         f"{np.linalg.norm(x):.6g} x {np.linalg.norm(y):.6g}")
     m = np.eye(4)
     m[:3, 0], m[:3, 1] = x / np.linalg.norm(x), y / np.linalg.norm(y)
@@ -144,14 +149,29 @@ def _board_to_world(corners: np.ndarray, board) -> np.ndarray:
     return m
 
 
+@contextmanager
+def _field(where: str):
+    """Report a ValueError raised while building ``where`` (a spec field) as a SpecError naming it.
+    The schema refuses what it can see; this catches what only the built objects can."""
+    try:
+        yield
+    except SpecError:
+        raise
+    except ValueError as exc:
+        raise SpecError(f"{where}: {' '.join(str(exc).split())}") from None
+
+
 def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
-    """Spec -> scene model, cameras per split, calibration targets. Raises SpecError."""
+    """Spec -> scene model, cameras per split, calibration targets. Raises SpecError naming the field."""
     up = np.asarray(spec.up, float)
-    if np.linalg.norm(up) < 1e-12:
+    if np.linalg.norm(up) < 1e-12:  # the schema refuses it too; build_scene also takes hand-made specs
         raise SpecError("up: must be a non-zero vector")
     up = up / np.linalg.norm(up)
     textures = {name: load_texture(name, t, base_dir) for name, t in spec.textures.items()}
-    materials = {name: _material(m, textures) for name, m in spec.materials.items()}
+    materials = {}
+    for name, m in spec.materials.items():
+        with _field(f"materials.{name}"):
+            materials[name] = _material(m, textures)
     objects: list[SceneObject] = []
     targets: dict[str, dict] = {}
     for i, o in enumerate(spec.objects):
@@ -161,7 +181,8 @@ def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
                      zip(("px", "nx", "py", "ny", "pz", "nz"), box_face_quads(o.shape.box.size, o.shape.box.center),
                          o.face_materials)]
         else:
-            parts = [(o.name, _shape_mesh(o.shape, up, base_dir, where), o.material)]
+            with _field(f"{where}.shape"):
+                parts = [(o.name, _shape_mesh(o.shape, up, base_dir, where), o.material)]
         for name, mesh, mat_name in parts:
             mat = materials[mat_name]
             if isinstance(mat, Lambertian) and mat.texture is not None and getattr(mesh.visual, "uv", None) is None:
@@ -174,27 +195,35 @@ def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
                     raise SpecError(f"{where}.shape: a charuco texture must sit on a quad")
                 board = spec.textures[tex.texture].charuco
                 targets[name] = {"board": board.model_dump(mode="json"),
-                                 "board_to_world": _board_to_world(np.asarray(o.shape.quad.corners, float), board).tolist()}
+                                 "board_to_world": _board_to_world(np.asarray(o.shape.quad.corners, float), board,
+                                                                   where).tolist()}
     lights = []
-    for light in spec.lights:
-        if isinstance(light, PointLightSpec):
-            lights.append(PointLight(np.array(light.position), np.array(light.intensity)))
-        elif isinstance(light, SpotLightSpec):
-            lights.append(SpotLight(np.array(light.position), np.subtract(light.target, light.position),
-                                    np.array(light.intensity), np.radians(light.inner_deg), np.radians(light.outer_deg)))
-        else:
-            lights.append(DirectionalLight(np.array(light.direction), np.array(light.irradiance)))
-    media = [Medium(_shape_mesh(m.bounds, up, base_dir, f"media.{i}.bounds"), np.array(m.sigma_a),
-                    np.array(m.sigma_s), np.array(m.emission), m.g, _density(m, up, base_dir, f"media.{i}.density"))
-             for i, m in enumerate(spec.media)]
-    try:
+    for i, light in enumerate(spec.lights):
+        with _field(f"lights.{i}"):
+            if isinstance(light, PointLightSpec):
+                lights.append(PointLight(np.array(light.position), np.array(light.intensity)))
+            elif isinstance(light, SpotLightSpec):
+                lights.append(SpotLight(np.array(light.position), np.subtract(light.target, light.position),
+                                        np.array(light.intensity), np.radians(light.inner_deg),
+                                        np.radians(light.outer_deg)))
+            else:
+                lights.append(DirectionalLight(np.array(light.direction), np.array(light.irradiance)))
+    media = []
+    for i, m in enumerate(spec.media):
+        with _field(f"media.{i}"):
+            media.append(Medium(_shape_mesh(m.bounds, up, base_dir, f"media.{i}.bounds"), np.array(m.sigma_a),
+                                np.array(m.sigma_s), np.array(m.emission), m.g,
+                                _density(m, up, base_dir, f"media.{i}.density")))
+    with _field("objects"):
         scene = Scene(spec.name, objects, lights, media, np.array(spec.background), up,
                       frozenset(spec.effects) if spec.effects is not None else None)
-    except ValueError as exc:
-        raise SpecError(str(exc)) from None
-    intrinsics = make_intrinsics(spec.cameras.intrinsics)
-    cameras = {split: layout_cameras(getattr(spec.cameras, split), intrinsics, up, split)
-               for split in ("train", "test", "scene") if getattr(spec.cameras, split)}
+    with _field("cameras.intrinsics"):
+        intrinsics = make_intrinsics(spec.cameras.intrinsics)
+    cameras = {}
+    for split in ("train", "test", "scene"):
+        if getattr(spec.cameras, split):
+            with _field(f"cameras.{split}"):
+                cameras[split] = layout_cameras(getattr(spec.cameras, split), intrinsics, up, split)
     return RigScene(spec, scene, cameras, targets)
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
 
-from .spec import GantryLayout, IntrinsicsSpec, LayoutSpec, RingLayout, ViewLayout
+from .spec import GantryLayout, IntrinsicsSpec, LayoutSpec, RingLayout, ViewLayout, view_names
 
 __all__ = ["make_intrinsics", "ring_poses", "gantry_poses", "layout_cameras"]
 
@@ -49,7 +49,7 @@ def ring_poses(ring: RingLayout, up: np.ndarray) -> list[np.ndarray]:
 def gantry_poses(g: GantryLayout, up: np.ndarray) -> list[np.ndarray]:
     """A grid of cameras in the plane through ``center`` perpendicular to center -> look_at,
     all sharing the orientation of the central camera; row-major from the top-left."""
-    centre_pose = look_at(g.center, g.look_at, np.asarray(g.up if g.up is not None else up, float))
+    centre_pose = look_at(g.center, g.look_at, _unit(g.up if g.up is not None else up))
     right, down = centre_pose[:3, 0], centre_pose[:3, 1]
     us = (np.arange(g.nu) - (g.nu - 1) / 2) * (g.extent[0] / max(g.nu - 1, 1))
     vs = (np.arange(g.nv) - (g.nv - 1) / 2) * (g.extent[1] / max(g.nv - 1, 1))
@@ -63,19 +63,22 @@ def gantry_poses(g: GantryLayout, up: np.ndarray) -> list[np.ndarray]:
 
 
 def layout_cameras(layouts: list[LayoutSpec], intrinsics: Intrinsics, up, prefix: str) -> list[Camera]:
-    """Expand a split's layouts into named cameras ``<prefix>_<index:03d>`` (or a view's name)."""
+    """Expand a split's layouts into named cameras (:func:`rig.spec.view_names`: a view's own name,
+    else ``<prefix>_<index:03d>``). A view's or gantry's ``up`` is normalized before use, so only
+    its direction matters (the spec has checked it is non-zero and not along the view)."""
     up = np.asarray(up, float)
-    cams: list[Camera] = []
+    poses: list[np.ndarray] = []
     for layout in layouts:
         if layout.ring is not None:
-            poses, names = ring_poses(layout.ring, up), None
+            poses += ring_poses(layout.ring, up)
         elif layout.gantry is not None:
-            poses, names = gantry_poses(layout.gantry, up), None
+            poses += gantry_poses(layout.gantry, up)
         else:
             v: ViewLayout = layout.view
-            poses = [look_at(v.eye, v.target, np.asarray(v.up if v.up is not None else up, float))]
-            names = [v.name] if v.name else None
-        for i, pose in enumerate(poses):
-            name = names[i] if names else f"{prefix}_{len(cams):03d}"
-            cams.append(Camera(intrinsics, pose, name))
-    return cams
+            poses.append(look_at(v.eye, v.target, _unit(v.up if v.up is not None else up)))
+    return [Camera(intrinsics, pose, name) for pose, name in zip(poses, view_names(layouts, prefix), strict=True)]
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)

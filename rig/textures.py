@@ -2,13 +2,14 @@
 drawn by OpenCV, seeded procedural patterns. All return (H, W, 3) uint8 sRGB."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
 from PIL import Image
 
-from .spec import CharucoTexture, ProceduralTexture, SpecError, TextureSpec
+from .spec import MAX_TEXTURE_SIDE, CharucoTexture, ProceduralTexture, SpecError, TextureSpec, resolve_file
 
 __all__ = ["load_texture", "charuco_board", "charuco_image"]
 
@@ -56,20 +57,35 @@ def load_texture(name: str, spec: TextureSpec, base_dir: Path) -> np.ndarray:
     if spec.procedural is not None:
         return _procedural(spec.procedural)
     src = spec.image.image
+    field = f"textures.{name}.image"
     if src.startswith("skimage:"):
         import skimage.data
 
-        fn = getattr(skimage.data, src.split(":", 1)[1], None)
-        if fn is None or not callable(fn):
-            raise SpecError(f"textures.{name}.image: scikit-image has no bundled image '{src}'")
-        img = np.asarray(fn())
+        # the schema allows only images bundled with scikit-image (no download, no other callable)
+        img = np.asarray(getattr(skimage.data, src.split(":", 1)[1])())
     else:
-        path = (base_dir / src) if not Path(src).is_absolute() else Path(src)
-        if not path.is_file():
-            raise SpecError(f"textures.{name}.image: file not found: {path}")
-        img = np.asarray(Image.open(path).convert("RGB"))
+        img = _read_image(resolve_file(base_dir, src, field), field)
     if img.dtype == bool:
         img = img.astype(np.uint8) * 255
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     return np.ascontiguousarray(img[..., :3].astype(np.uint8))
+
+
+def _read_image(path: Path, field: str) -> np.ndarray:
+    """(H, W, 3) uint8 from an image file; SpecError naming ``field`` for anything unreadable or
+    larger than MAX_TEXTURE_SIDE per side (judged from the header, before decoding)."""
+    try:
+        with warnings.catch_warnings():
+            # Pillow's warnings (e.g. about palette transparency) would add lines to the one-line error
+            warnings.simplefilter("ignore")
+            with Image.open(path) as im:
+                w, h = im.size
+                if max(w, h) > MAX_TEXTURE_SIDE:
+                    raise SpecError(f"{field}: {path} is {w} x {h} pixels, at most {MAX_TEXTURE_SIDE} per side")
+                return np.asarray(im.convert("RGB"))
+    except SpecError:
+        raise
+    except Exception as exc:  # Pillow raises OSError, ValueError, SyntaxError... for broken files
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        raise SpecError(f"{field}: cannot read {path} as an image ({why})") from None

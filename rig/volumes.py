@@ -12,7 +12,10 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["smoke_density", "load_density_file"]
+__all__ = ["smoke_density", "load_density_file", "MAX_DENSITY_CELLS"]
+
+#: cells of a density grid file (256^3 float64: 134 MB)
+MAX_DENSITY_CELLS = 256 ** 3
 
 
 def smoke_density(resolution: int, seed: int = 0, octaves: int = 4, up_axis: int = 2) -> np.ndarray:
@@ -54,14 +57,18 @@ def smoke_density(resolution: int, seed: int = 0, octaves: int = 4, up_axis: int
 def load_density_file(path: Path) -> np.ndarray:
     """A (X, Y, Z) density grid from a ``.npy`` file, checked finite and non-negative."""
     try:
-        grid = np.load(path, allow_pickle=False)
+        # memory-mapped first, so an oversized grid is refused from its header before it is read
+        grid = np.load(path, mmap_mode="r", allow_pickle=False)
     except (OSError, ValueError, EOFError) as exc:
-        raise ValueError(f"{path}: not a readable .npy array ({exc})") from None
+        raise ValueError(f"{path}: not a readable .npy array ({' '.join(str(exc).split())})") from None
     if not isinstance(grid, np.ndarray) or grid.dtype.kind not in "biuf":
         raise ValueError(f"{path}: a density grid must be a numeric array")
     if grid.ndim != 3 or min(grid.shape) < 1:
         raise ValueError(f"{path}: a density grid must be a 3-D (X, Y, Z) array, got shape {grid.shape}")
-    grid = grid.astype(np.float64)
+    if grid.size > MAX_DENSITY_CELLS:
+        raise ValueError(f"{path}: a density grid of shape {grid.shape} has {grid.size} cells, "
+                         f"at most {MAX_DENSITY_CELLS} (256^3)")
+    grid = np.array(grid, dtype=np.float64)
     if not np.all(np.isfinite(grid)) or grid.min() < 0:
         raise ValueError(f"{path}: density must be finite and non-negative")
     return grid

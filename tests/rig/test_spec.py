@@ -142,7 +142,7 @@ def test_density_file_is_loaded_and_checked(tmp_path):
     np.save(tmp_path / "bad.npy", -grid)
     with pytest.raises(SpecError, match=r"media\.0\.density\.file: .*non-negative"):
         load_scene(_write(tmp_path, _fog(density={"file": "bad.npy"})))
-    with pytest.raises(SpecError, match=r"media\.0\.density\.file: density file not found"):
+    with pytest.raises(SpecError, match=r"media\.0\.density\.file: file not found"):
         load_scene(_write(tmp_path, _fog(density={"file": "missing.npy"})))
     (tmp_path / "text.npy").write_text("not an array")
     with pytest.raises(SpecError, match=r"media\.0\.density\.file: .*not a readable"):
