@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from ptutil import assert_furnace_mean, assert_images_agree, image_mean_and_se, quad
+from ptutil import assert_furnace_mean, assert_images_agree, compare_images, image_mean_and_se, probe_camera, quad
 from render.bsdf import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.microfacet import RoughConductor, RoughDielectric
 from render.pathtracer import RenderSettings, choose_integrator, prepare, render
 from render.poses import look_at
-from render.scene import Dielectric, Emissive, Lambertian, Medium, Scene, SceneObject
+from render.scene import Dielectric, Emissive, Lambertian, Medium, Mirror, Scene, SceneObject
 from render.volpath import volpath_context
 
 
@@ -54,15 +54,65 @@ def _cam():
                                                                np.array([0, 0, 1.0])), "c")
 
 
-def test_caustics_pruning_lossless_in_volpath():
-    """Without 'caustics' in the effects, volpath drops exactly what path drops (glass ball
-    over a floor under an area light): the two pruned renders agree per pixel."""
-    sc = _glass_scene(Dielectric(1.5))
+def test_caustics_pruning_drops_the_caustic_class_as_path_does():
+    """Without 'caustics' in the effects, volpath and path drop the same caustic class L S+ D E,
+    judged where that class is the only light that reaches a diffuse vertex through a specular
+    one: a mirror ball (reflectance 0.9) over a floor under an area light, max_depth 2, where
+    L S D E (eye -> floor -> ball -> light) is reachable and L D S D E (three scattering
+    events) is not. The pruned renders (volpath 2048 spp, seed 23; path 4096, seed 24) agree
+    per pixel and in the image mean (ptutil.assert_images_agree: alpha 0.01, Sidak; measured:
+    every pixel channel passes, global z 1.0), and the dropped class is visible at this noise:
+    the unpruned `path` render (4096 spp, seed 26) differs from the pruned one by a global z > 8
+    (measured 10.5; the caustic is 2.3% of the image). Breaks caught: volpath not pruning (its
+    caustics flag ignored: global z 7.7) and volpath pruning every specular bounce (also L S E,
+    the light seen in the mirror: 95% of pixel channels pass).
+
+    Beyond this depth the two differ by design (docs/architecture.md): `path` keeps L D S+ D E
+    paths found by next-event estimation (floor -> ball -> floor), volpath cuts a path at its
+    first specular sample after a diffuse vertex. Measured on the glass ball at max_depth 5
+    (volpath 8192 spp, path 32768): path's pruned image is 0.23% brighter (2% of the dropped
+    caustic), trimmed global z 4.1, so a test of that scene at depth 5 fails at enough samples."""
+    sc = _glass_scene(Mirror(np.full(3, 0.9)))
     eff = frozenset({"direct", "soft_shadows", "specular", "interreflection"})
     ps = prepare(sc)
-    a = render(sc, _cam(), RenderSettings(integrator="volpath", spp=256, max_depth=5, seed=23), effects=eff, prepared=ps)
-    b = render(sc, _cam(), RenderSettings(integrator="path", spp=1024, max_depth=5, seed=24), effects=eff, prepared=ps)
-    assert_images_agree(a, b, block=2)
+    a = render(sc, _cam(), RenderSettings(integrator="volpath", spp=2048, max_depth=2, seed=23), effects=eff, prepared=ps)
+    b = render(sc, _cam(), RenderSettings(integrator="path", spp=4096, max_depth=2, seed=24), effects=eff, prepared=ps)
+    assert_images_agree(a, b)
+    full = render(sc, _cam(), RenderSettings(integrator="path", spp=4096, max_depth=2, seed=26),
+                  effects=eff | {"caustics"}, prepared=ps)
+    _, gz, _ = compare_images(full, b)  # trimmed by the pruned reference's variance, not the caustic's
+    assert gz > 8, f"the caustic class is not visible at this noise (global z {gz:.1f})"
+
+
+def test_caustics_pruning_volpath_cuts_indirect_caustics_that_path_keeps():
+    """The documented difference between the two pruning rules (docs/architecture.md), judged
+    where it is all there is: a probe camera grazing the floor (eye (0, -3, 0.15), under the
+    glass ball) sees only a point of the ball's umbra, lit by L S+ D E (the caustic) and
+    L D S+ D E (the floor's light refocused by the ball onto the floor). Max depth 5.
+    - With 'caustics': volpath (256 spp, seed 27) and path (1024 spp, seed 28) agree within the
+      two-sample z at alpha 0.01 (|z| < 2.58).
+    - Without: volpath cuts every path at its first specular sample after a diffuse vertex, so
+      the probe is black with zero variance; `path` drops only emission reached through such a
+      chain and keeps what next-event estimation finds after it: lit, z > 8 against black.
+    Measured: with caustics volpath 3.28 (se 0.08), path 3.29 (se 0.04); without, path 0.00231
+    (se 0.00015, 0.07% of the caustic) and volpath 0. (pssmlt's sampler prunes as path does:
+    test_pssmlt.py.)"""
+    sc = _glass_scene(Dielectric(1.5))
+    ps = prepare(sc)
+    cam = probe_camera(np.zeros(3), np.array([0.0, -3.0, 0.15]))
+    eff = frozenset({"direct", "soft_shadows", "specular", "interreflection"})
+    z_crit = 2.576
+    runs = {}
+    for caustics in (True, False):
+        e = eff | {"caustics"} if caustics else eff
+        runs[caustics] = [image_mean_and_se(render(sc, cam, RenderSettings(integrator=integrator, spp=spp, max_depth=5,
+                                                                           seed=seed), effects=e, prepared=ps))
+                          for integrator, spp, seed in (("volpath", 256, 27), ("path", 1024, 28))]
+    (mv, sv), (mp, sp) = runs[True]
+    assert np.all(np.abs(mv - mp) < z_crit * np.hypot(sv, sp)) and np.all(mv > 8 * sv), runs[True]
+    (mv, sv), (mp, sp) = runs[False]
+    assert np.all(mv == 0) and np.all(sv == 0), runs[False]
+    assert np.all(mp > 8 * sp), runs[False]
 
 
 def test_glossy_scene_reaches_volpath_and_is_finite():
