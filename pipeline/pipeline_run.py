@@ -10,14 +10,34 @@ from .artifacts import BadInput, stage_dir
 from .distributed import ClusterConfig, engine
 from .inspect import inspect_folder
 
-__all__ = ["run_pipeline"]
+__all__ = ["run_pipeline", "slab_layout_for", "ST_SAMPLES_PER_CAPTURE_PIXEL"]
+
+#: slab st samples per capture pixel across: the slab study chose st 384 on 1280-wide captures
+#: (docs/architecture.md, light slab defaults), 0.3 per pixel; smaller captures get
+#: proportionally fewer (never more than LayoutConfig's default), so the slab stage's work
+#: follows the scene's resolution instead of the demo's
+ST_SAMPLES_PER_CAPTURE_PIXEL = 384 / 1280
+
+
+def slab_layout_for(rig: RigScene):
+    """The slab layout ``lumigraph run`` uses: LayoutConfig's defaults with st_res =
+    min(default, ceil(ST_SAMPLES_PER_CAPTURE_PIXEL x the widest train/test view)), at least 8
+    (the default 1280-wide turntable keeps st 384)."""
+    import math
+
+    from recon.slab import LayoutConfig
+
+    default = LayoutConfig()
+    widest = max((c.intrinsics.width for s in ("train", "test") for c in rig.cameras.get(s, [])), default=0)
+    return LayoutConfig(st_res=min(default.st_res, max(8, math.ceil(ST_SAMPLES_PER_CAPTURE_PIXEL * widest))))
 
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
                  colmap_image_scale: float = 0.5, nerf_model: str = "fast", nerf_minutes: float = 4.0,
                  quiet: bool = False, cluster: ClusterConfig | None = None) -> list[str]:
     """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab (direct,
-    and rebinned on COLMAP's cameras when they exist), NeRF, validate and report.
+    and rebinned on COLMAP's cameras when they exist; layout :func:`slab_layout_for`), NeRF,
+    validate and report.
 
     cluster: one engine for every stage (pipeline.distributed; started once, dashboard printed
     once): None in this process; a :class:`ClusterConfig` whose default (no scheduler, no
@@ -74,11 +94,13 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
             return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
                     f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
 
-        m = run_slab(cap, None, stage_dir(name, "slab", root), reference_dir=ref, quiet=quiet, cluster=eng)
+        layout = slab_layout_for(rig)
+        m = run_slab(cap, None, stage_dir(name, "slab", root), SlabStageConfig(layout=layout), reference_dir=ref,
+                     quiet=quiet, cluster=eng)
         lines.append(slab_line("slab", m))
         if "colmap" in estimated:
-            m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root), SlabStageConfig(method="rebin"),
-                         reference_dir=ref, quiet=quiet, cluster=eng)
+            m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root),
+                         SlabStageConfig(method="rebin", layout=layout), reference_dir=ref, quiet=quiet, cluster=eng)
             lines.append(slab_line("slab-colmap", m))
         if nerf_minutes > 0:
             m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
