@@ -39,7 +39,7 @@ from .image_io import atomic_path
 from .poses import c2w_to_colmap, colmap_to_c2w, opencv_to_opengl, opengl_to_opencv
 
 __all__ = [
-    "SPLITS", "CAMERAS_JSON_FORMAT",
+    "SPLITS", "CAMERAS_JSON_FORMAT", "MAX_IMAGE_SIDE", "MAX_NAME_BYTES", "view_name_problem",
     "write_cameras_json", "read_cameras_json",
     "write_colmap_text", "read_colmap_text",
     "write_transforms_json", "read_transforms_json",
@@ -48,6 +48,11 @@ __all__ = [
 #: the split labels ``cameras.json`` accepts
 SPLITS = ("train", "test", "scene")  # "scene": a scene's own camera(s), e.g. the Cornell box's
 CAMERAS_JSON_FORMAT = "lumigraph.cameras/1"
+#: largest image side a camera file may state (a larger one is a corrupt file, not a camera)
+MAX_IMAGE_SIDE = 1 << 15
+#: longest view name in UTF-8 bytes: the stem plus our suffixes and temporary-name decorations
+#: (``.<stem>.<random>.partial.exr``) must fit a 255-byte file name
+MAX_NAME_BYTES = 200
 
 _CONVENTION = {
     "camera_frame": "OpenCV: x right, y down, z forward",
@@ -60,6 +65,54 @@ _CONVENTION = {
 
 
 # --------------------------------------------------------------------------- checks
+
+
+def view_name_problem(name) -> str | None:
+    """Why ``name`` cannot be a view name, or None when it can.
+
+    A view name becomes a file stem in every stage folder (``linear/<name>.exr``), so it must be
+    a plain file name component: a non-empty string of at most :data:`MAX_NAME_BYTES` UTF-8
+    bytes, without path separators (``/``, ``\\``), NUL or other control characters, or
+    whitespace (COLMAP's image lists split on it), not starting with ``.`` (hidden names are our
+    temporary files; ``.`` and ``..`` are the folder itself and its parent)."""
+    if not isinstance(name, str):
+        return f"must be a string, got {type(name).__name__}"
+    if not name:
+        return "must not be empty"
+    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        return f"is longer than {MAX_NAME_BYTES} bytes"
+    if "/" in name or "\\" in name:
+        return f"{name!r} holds a path separator (a view name is a plain file name, not a path)"
+    if any(ord(ch) < 32 or ord(ch) == 127 for ch in name):
+        return f"{name!r} holds a control character"
+    if any(ch.isspace() for ch in name):
+        return f"{name!r} holds whitespace"
+    if name.startswith("."):
+        return f"{name!r} starts with '.' (hidden names are reserved for temporary files)"
+    return None
+
+
+def _check_view_name(name, where: str) -> str:
+    problem = view_name_problem(name)
+    if problem is not None:
+        raise ValueError(f"{where}: field 'name' {problem}")
+    return name
+
+
+def _check_intrinsics(k: Intrinsics, where: str) -> Intrinsics:
+    """Finite focal lengths and principal point, finite distortion, sides in [1, MAX_IMAGE_SIDE]."""
+    for field_name in ("fx", "fy", "cx", "cy"):
+        v = getattr(k, field_name)
+        if not math.isfinite(v):
+            raise ValueError(f"{where}: field 'intrinsics.{field_name}' must be finite, got {v!r}")
+    if len(k.dist) != 5 or not all(math.isfinite(d) for d in k.dist):
+        raise ValueError(f"{where}: field 'intrinsics.dist' must be 5 finite numbers (k1 k2 p1 p2 k3), "
+                         f"got {list(k.dist)}")
+    for field_name in ("width", "height"):
+        v = getattr(k, field_name)
+        if v > MAX_IMAGE_SIDE:
+            raise ValueError(f"{where}: field 'intrinsics.{field_name}' is {v}, above {MAX_IMAGE_SIDE}")
+    return k
 
 
 def _check_cameras(cameras: Sequence[Camera]) -> list[Camera]:
@@ -104,8 +157,10 @@ def _finite(x, what: str) -> float:
 def _rigid(m: np.ndarray, what: str) -> np.ndarray:
     """Validate a (4, 4) rigid transform (rotation part orthonormal, det +1, last row 0 0 0 1)."""
     m = np.asarray(m, dtype=np.float64)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise ValueError(f"{what}: expected a finite (4, 4) matrix, got shape {m.shape}")
+    if m.shape != (4, 4):
+        raise ValueError(f"{what}: expected a (4, 4) matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f"{what}: holds non-finite values (NaN or infinity)")
     R = m[:3, :3]
     if (not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0
             or not np.allclose(m[3], [0, 0, 0, 1], atol=1e-12)):
@@ -163,17 +218,32 @@ def read_cameras_json(path) -> tuple[list[Camera], list[str]]:
         raise ValueError(f"{path}: 'cameras' must be a non-empty list")
     cams, splits = [], []
     for i, e in enumerate(entries):
+        where = f"{path}: camera {i}"
+        if not isinstance(e, dict):
+            raise ValueError(f"{where}: expected an object, got {type(e).__name__}")
+        for key in ("name", "split", "intrinsics", "cam_to_world"):
+            if key not in e:
+                raise ValueError(f"{where}: missing field {key!r}")
+        name = _check_view_name(e["name"], where)
+        where = f"{path}: camera {i} ({name})"
+        split = e["split"]
+        if not isinstance(split, str) or split not in SPLITS:
+            raise ValueError(f"{where}: field 'split': unknown split {split!r}; known: {list(SPLITS)}")
         try:
-            split = e["split"]
-            cam = Camera(Intrinsics.from_dict(e["intrinsics"]),
-                         _rigid(np.array(e["cam_to_world"], dtype=np.float64), f"camera {i}"), str(e["name"]))
-        except (KeyError, TypeError) as err:
-            raise ValueError(f"{path}: camera {i}: missing or malformed field {err}") from None
-        if split not in SPLITS:
-            raise ValueError(f"{path}: camera {i}: unknown split {split!r}; known: {list(SPLITS)}")
+            k = Intrinsics.from_dict(e["intrinsics"])
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
+            raise ValueError(f"{where}: field 'intrinsics': missing or malformed ({str(err).splitlines()[0]})") from None
+        try:
+            pose = np.array(e["cam_to_world"], dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{where}: field 'cam_to_world': not a 4x4 matrix of numbers ({err})") from None
+        cam = Camera(_check_intrinsics(k, where), _rigid(pose, f"{where}: field 'cam_to_world'"), name)
         cams.append(cam)
         splits.append(split)
-    _check_unique_names(cams)
+    try:
+        _check_unique_names(cams)
+    except ValueError as err:
+        raise ValueError(f"{path}: field 'name': {err}") from None
     return cams, splits
 
 
@@ -315,7 +385,7 @@ def read_colmap_text(directory) -> list[Camera]:
             raise ValueError(f"{where}: malformed pose")
         if cid not in intr:
             raise ValueError(f"{where}: image {name!r} refers to unknown camera id {cid}")
-        entries.append((iid, Camera(intr[cid], colmap_to_c2w(q, t), _stem(name))))
+        entries.append((iid, Camera(intr[cid], colmap_to_c2w(q, t), _check_view_name(_stem(name), where))))
         i += 2  # skip the POINTS2D line
     if not entries:
         raise ValueError(f"{img_file}: no images")
@@ -395,7 +465,8 @@ def read_transforms_json(path) -> list[Camera]:
         k = Intrinsics(int(get("w")), int(get("h")), _finite(get("fl_x"), "fl_x"), _finite(get("fl_y"), "fl_y"),
                        _finite(get("cx"), "cx"), _finite(get("cy"), "cy"),
                        tuple(_finite(get(n, 0.0), n) for n in ("k1", "k2", "p1", "p2", "k3")))
-        cams.append(Camera(k, opengl_to_opencv(_rigid(m, where)), _stem(fp)))
+        cams.append(Camera(_check_intrinsics(k, where), opengl_to_opencv(_rigid(m, where)),
+                           _check_view_name(_stem(fp), f"{where}: file_path")))
     return cams
 
 

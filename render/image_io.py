@@ -6,7 +6,9 @@ so an interrupted write never leaves a file that looks finished.
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -19,7 +21,10 @@ from .color import to_srgb8
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
-__all__ = ["atomic_path", "write_exr", "read_exr", "write_png", "read_png", "write_preview"]
+__all__ = ["atomic_path", "write_exr", "read_exr", "exr_size", "write_png", "read_png", "png_size", "write_preview"]
+
+#: one native-output redirection at a time: file descriptors are process-wide
+_NATIVE_OUTPUT_LOCK = threading.Lock()
 
 
 @contextmanager
@@ -61,20 +66,101 @@ def write_exr(path, image: np.ndarray) -> None:
             f.write(str(tmp))
 
 
+@contextmanager
+def _native_output_captured():
+    """Collect what native libraries print on file descriptors 1 and 2 during the block.
+
+    OpenEXR's C/C++ core reports a corrupt file on stdout and stderr itself before raising, which
+    would put extra lines before our one-line error. Yields ``{fd: bytes}`` filled when the block
+    ends; the caller decides whether to re-emit (success: warnings are kept) or drop them (the
+    failure becomes one exception naming the file). Serialised by a lock: descriptors are
+    process-wide, and two interleaved redirections would leave one restored to the other's sink."""
+    captured: dict[int, bytes] = {}
+    with _NATIVE_OUTPUT_LOCK:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (AttributeError, ValueError, OSError):
+                pass
+        saved = {fd: os.dup(fd) for fd in (1, 2)}
+        sinks = {fd: tempfile.TemporaryFile() for fd in (1, 2)}
+        try:
+            for fd, sink in sinks.items():
+                os.dup2(sink.fileno(), fd)
+            yield captured
+        finally:
+            for fd, copy in saved.items():
+                os.dup2(copy, fd)
+                os.close(copy)
+            for fd, sink in sinks.items():
+                sink.seek(0)
+                captured[fd] = sink.read()
+                sink.close()
+
+
+def _reemit(captured: dict[int, bytes]) -> None:
+    for fd, text in captured.items():
+        if text:
+            os.write(fd, text)
+
+
+def _native_reason(captured: dict[int, bytes], path: Path, exc: Exception) -> str:
+    """The first line OpenEXR printed (its own path prefix removed), else the exception's."""
+    for fd in (2, 1):
+        for line in captured.get(fd, b"").decode("utf-8", "replace").splitlines():
+            line = line.strip().removeprefix(f"{path}:").strip()
+            if line:
+                return line
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
 def read_exr(path) -> np.ndarray:
-    """Read an OpenEXR written by :func:`write_exr`: (H, W, 3) or (H, W) float32."""
+    """Read an OpenEXR written by :func:`write_exr`: (H, W, 3) or (H, W) float32.
+
+    FileNotFoundError when absent; ValueError, one line naming the file, when the file is not a
+    readable OpenEXR image (truncated, corrupt, no RGB or Y channels). Nothing is printed: what
+    OpenEXR's native core prints about a corrupt file goes into that line instead."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such image")
-    with OpenEXR.File(str(path)) as f:
-        ch = f.channels()
-        if "RGB" in ch:
-            return np.asarray(ch["RGB"].pixels, dtype=np.float32)
-        if "Y" in ch:
-            return np.asarray(ch["Y"].pixels, dtype=np.float32)
-        if all(c in ch for c in "RGB"):
-            return np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-        raise ValueError(f"{path}: no RGB or Y channels (has {sorted(ch)})")
+    error = None
+    with _native_output_captured() as captured:
+        try:
+            with OpenEXR.File(str(path)) as f:
+                ch = f.channels()
+                if "RGB" in ch:
+                    out = np.asarray(ch["RGB"].pixels, dtype=np.float32)
+                elif "Y" in ch:
+                    out = np.asarray(ch["Y"].pixels, dtype=np.float32)
+                elif all(c in ch for c in "RGB"):
+                    out = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+                else:
+                    raise ValueError(f"no RGB or Y channels (has {sorted(ch)})")
+        except Exception as exc:  # OpenEXR raises assorted types (RuntimeError, ValueError, ...) on corrupt files
+            error = exc
+    if error is not None:
+        raise ValueError(f"{path}: unreadable OpenEXR image ({_native_reason(captured, path, error)})") from None
+    _reemit(captured)
+    return out
+
+
+def exr_size(path) -> tuple[int, int]:
+    """(width, height) of an OpenEXR image from its header alone (ValueError naming the file when
+    the header is unreadable)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image")
+    error = None
+    with _native_output_captured() as captured:
+        try:
+            with OpenEXR.File(str(path), header_only=True) as f:
+                (x0, y0), (x1, y1) = f.header()["dataWindow"]
+        except Exception as exc:
+            error = exc
+    if error is not None:
+        raise ValueError(f"{path}: unreadable OpenEXR image ({_native_reason(captured, path, error)})") from None
+    _reemit(captured)
+    return int(x1 - x0 + 1), int(y1 - y0 + 1)
 
 
 def write_png(path, image: np.ndarray) -> None:
@@ -92,6 +178,21 @@ def read_png(path) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such image")
     return np.asarray(Image.open(path))
+
+
+def png_size(path) -> tuple[int, int]:
+    """(width, height) of a PNG from its header (ValueError naming the file when it is not a PNG)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image")
+    try:
+        with Image.open(path) as im:
+            if im.format != "PNG":
+                raise ValueError(f"a {im.format} image")
+            return int(im.width), int(im.height)
+    except (OSError, ValueError, SyntaxError) as exc:  # PIL.UnidentifiedImageError is an OSError
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"{path}: not a readable PNG image ({reason.replace(str(path), 'file')})") from None
 
 
 def write_preview(path, linear: np.ndarray, exposure: float = 1.0) -> None:
