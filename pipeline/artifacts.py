@@ -10,6 +10,12 @@
 
 A stage writes into a hidden sibling folder ``.<name>.partial-*`` and renames it into place only
 when complete, so an interrupted stage leaves nothing that looks finished.
+
+``--out`` never deletes what a user put there (:func:`check_out`): a stage replaces only an
+absent or empty folder, or a finished folder of its own kind (its ``manifest.json`` names the
+stage; for ``poses`` also the failure folder of a failed estimate); anything else (a file, a
+folder of the user's files, another stage's folder) is refused with BadInput before any work,
+unless the caller passes ``overwrite=True`` (the CLI's ``--overwrite``).
 """
 from __future__ import annotations
 
@@ -23,10 +29,11 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from render.camera_io import view_name_problem
 from render.image_io import atomic_path
 
-__all__ = ["BadInput", "DEFAULT_ROOT", "stage_dir", "atomic_stage", "sha256_file", "Manifest",
-           "write_json", "read_json", "read_manifest", "MANIFEST"]
+__all__ = ["BadInput", "DEFAULT_ROOT", "stage_dir", "atomic_stage", "check_out", "check_file_stem", "sha256_file",
+           "Manifest", "write_json", "read_json", "read_manifest", "read_stage_manifest", "MANIFEST", "OVERWRITE_HINT"]
 
 DEFAULT_ROOT = Path("artifacts")
 MANIFEST = "manifest.json"
@@ -34,6 +41,65 @@ MANIFEST = "manifest.json"
 
 class BadInput(ValueError):
     """User input is wrong (missing file, malformed scene, failed reconstruction): exit code 2."""
+
+
+OVERWRITE_HINT = "pass --overwrite to replace it, or choose another --out"
+
+
+def check_file_stem(name, where: str) -> str:
+    """``name`` if it is a plain file stem (a view name read from an input file), else BadInput
+    naming ``where`` (the file and field). The rule is :func:`render.camera_io.view_name_problem`:
+    no path separators, no leading '.', no control characters or whitespace, at most 200 bytes,
+    so ``folder / f"{name}.exr"`` stays inside ``folder``."""
+    problem = view_name_problem(name)
+    if problem is not None:
+        raise BadInput(f"{where}: {problem}")
+    return name
+
+
+def _failed_poses_folder(folder: Path) -> bool:
+    """The failure folder of a failed pose estimate (pipeline.stages.poses): only metrics.json,
+    whose status is "failed"."""
+    entries = [p.name for p in folder.iterdir()]
+    if entries != ["metrics.json"]:
+        return False
+    try:
+        doc = json.loads((folder / "metrics.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and doc.get("status") == "failed"
+
+
+def check_out(final: Path, stage: str | None, overwrite: bool = False) -> None:
+    """BadInput (one line naming ``final``) unless ``final`` may be replaced by ``stage``'s output:
+    absent, an empty folder, or a finished folder of the same stage (its manifest's "stage"; with
+    ``stage`` None, of any stage), or for ``poses`` a failed estimate's folder. ``overwrite``
+    allows anything (the user asked). Called before any work, and again by :func:`atomic_stage`."""
+    final = Path(final)
+    if overwrite or not (final.exists() or final.is_symlink()):
+        return
+    if not final.is_dir():
+        raise BadInput(f"{final}: exists and is not a folder; refusing to replace it ({OVERWRITE_HINT})")
+    try:
+        entries = sorted(p.name for p in final.iterdir())
+    except OSError as exc:
+        raise BadInput(f"{final}: cannot list the output folder ({exc.strerror})") from None
+    if not entries:
+        return
+    kind = None
+    if (final / MANIFEST).is_file():
+        try:
+            doc = json.loads((final / MANIFEST).read_text())
+            kind = doc.get("stage") if isinstance(doc, dict) else None
+        except (OSError, ValueError):
+            kind = None
+    if kind is not None and (stage is None or kind == stage):
+        return
+    if stage == "poses" and _failed_poses_folder(final):
+        return
+    what = (f"a finished '{kind}' stage folder, not '{stage}'" if isinstance(kind, str)
+            else f"not a finished {stage or 'stage'} folder (holds {len(entries)} entries, e.g. {entries[0]!r})")
+    raise BadInput(f"{final}: {what}; refusing to replace it ({OVERWRITE_HINT})")
 
 
 def stage_dir(scene_name: str, stage: str, root: Path = DEFAULT_ROOT) -> Path:
@@ -87,22 +153,28 @@ def _remove_orphans(final: Path) -> None:
 
 
 @contextmanager
-def atomic_stage(final: Path):
+def atomic_stage(final: Path, stage: str | None = None, overwrite: bool = False):
     """Yield a fresh temporary folder; on success replace ``final`` with it, else delete it.
 
-    A killed run leaves its ``.<name>.partial-<pid>-*`` folder behind (nothing can clean up after
-    SIGKILL); the next run of the stage removes those whose process is gone."""
+    ``final`` is checked first (:func:`check_out`): only an absent or empty folder or a finished
+    ``stage`` folder is replaced, unless ``overwrite``. A killed run leaves its
+    ``.<name>.partial-<pid>-*`` folder behind (nothing can clean up after SIGKILL); the next run
+    of the stage removes those whose process is gone."""
     final = Path(final)
+    check_out(final, stage, overwrite)
     final.parent.mkdir(parents=True, exist_ok=True)
     _remove_orphans(final)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-{os.getpid()}-", dir=final.parent))
     try:
         yield tmp
-        if final.exists():
+        if final.exists() or final.is_symlink():
             old = final.with_name(f".{final.name}.old-{os.getpid()}")
             os.replace(final, old)
             os.replace(tmp, final)
-            shutil.rmtree(old, ignore_errors=True)
+            if old.is_dir() and not old.is_symlink():
+                shutil.rmtree(old, ignore_errors=True)
+            else:  # a file (or link) the user asked to overwrite
+                old.unlink(missing_ok=True)
         else:
             os.replace(tmp, final)
     finally:
@@ -156,4 +228,23 @@ def read_manifest(folder: Path) -> dict:
         raise BadInput(f"{folder}: no such folder")
     if not (folder / MANIFEST).is_file():
         raise BadInput(f"{folder}: no {MANIFEST} (not a finished stage folder)")
-    return read_json(folder / MANIFEST)
+    doc = read_json(folder / MANIFEST)
+    if not isinstance(doc, dict):
+        raise BadInput(f"{folder / MANIFEST}: expected a JSON object")
+    if not isinstance(doc.get("stage"), str):
+        raise BadInput(f"{folder / MANIFEST}: field 'stage' missing or not a string")
+    for key in ("params", "inputs", "outputs", "metrics"):
+        if not isinstance(doc.get(key, {}), dict):
+            raise BadInput(f"{folder / MANIFEST}: field '{key}' is not an object")
+    if not isinstance(doc.get("wall_time_s", 0.0), (int, float)) or isinstance(doc.get("wall_time_s"), bool):
+        raise BadInput(f"{folder / MANIFEST}: field 'wall_time_s' is not a number")
+    return doc
+
+
+def read_stage_manifest(folder: Path, stage: str) -> dict:
+    """:func:`read_manifest` of a folder that must be a finished ``stage`` folder (BadInput
+    naming the manifest and its 'stage' field otherwise)."""
+    doc = read_manifest(folder)
+    if doc["stage"] != stage:
+        raise BadInput(f"{Path(folder) / MANIFEST}: field 'stage' is {doc['stage']!r}, expected a {stage!r} folder")
+    return doc

@@ -17,6 +17,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_
 
 QUIET = typer.Option(False, "--quiet", "-q", help="no progress bar")
 SCHEDULER = typer.Option(None, envvar="LUMIGRAPH_SCHEDULER", help="existing Dask scheduler address (default: local)")
+OVERWRITE = typer.Option(False, "--overwrite", help="replace whatever --out holds (default: only a finished "
+                                                    "folder of this stage; anything else is refused)")
 WORKERS = typer.Option(None, help="local Dask workers (default: cores/2, in process when that is 1; 0: in process)")
 
 
@@ -61,13 +63,14 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
             root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
             scheduler: Optional[str] = SCHEDULER,
             workers: Optional[int] = WORKERS,
-            quiet: bool = QUIET):
+            quiet: bool = QUIET,
+            overwrite: bool = OVERWRITE):
     """Render a scene's train and test views with ground-truth cameras."""
     from .stages.capture import run_capture
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "capture", root)
-    m = run_capture(rig, path, out, seed, quiet, _cluster(scheduler, workers))
+    m = run_capture(rig, path, out, seed, quiet, _cluster(scheduler, workers), overwrite=overwrite)
     typer.echo(f"capture: {m['metrics']['views']} views ({m['params']['renderer']}) in {m['wall_time_s']:.1f} s -> {out}")
 
 
@@ -83,14 +86,15 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
               scheduler: Optional[str] = SCHEDULER,
               workers: Optional[int] = WORKERS,
-              quiet: bool = QUIET):
+              quiet: bool = QUIET,
+              overwrite: bool = OVERWRITE):
     """Path-traced reference renders of a scene's views, with per-pixel variance images."""
     from .stages.reference import run_reference
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "reference", root)
     m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet,
-                      _cluster(scheduler, workers))
+                      _cluster(scheduler, workers), overwrite=overwrite)
     typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
 
@@ -103,7 +107,8 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
           image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
           max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
           matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | sequential"),
-          quiet: bool = QUIET):
+          quiet: bool = QUIET,
+          overwrite: bool = OVERWRITE):
     """Estimate camera poses from a capture's images and score them against its ground truth."""
     from recon.poses import CharucoConfig, ColmapConfig
 
@@ -116,7 +121,7 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "poses" / method
-    m = run_poses(capture_dir, method, out, cfg, quiet)
+    m = run_poses(capture_dir, method, out, cfg, quiet, overwrite=overwrite)
     mt = m["metrics"]
     typer.echo(f"poses {method}: {mt['views_registered']}/{mt['views_total']} views, "
                f"rotation error {mt['rotation_error_deg_mean']:.4f} deg mean -> {out}")
@@ -136,7 +141,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
          scheduler: Optional[str] = SCHEDULER,
          workers: Optional[int] = WORKERS,
-         quiet: bool = QUIET):
+         quiet: bool = QUIET,
+         overwrite: bool = OVERWRITE):
     """Build light slabs from a capture; render and score its held-out views."""
     from recon.slab import LayoutConfig
 
@@ -148,7 +154,7 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "slab"
-    m = run_slab(capture_dir, poses, out, cfg, reference, quiet, _cluster(scheduler, workers))
+    m = run_slab(capture_dir, poses, out, cfg, reference, quiet, _cluster(scheduler, workers), overwrite=overwrite)
     mt = m["metrics"]
     typer.echo(f"slab: {mt['mode']} PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} -> {out}")
 
@@ -167,13 +173,14 @@ def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          resume: bool = typer.Option(False, help="continue an interrupted run's checkpoint"),
          scheduler: Optional[str] = SCHEDULER,
          workers: Optional[int] = WORKERS,
-         quiet: bool = QUIET):
+         quiet: bool = QUIET,
+         overwrite: bool = OVERWRITE):
     """Train a radiance field from a capture; render and score its held-out views."""
     from .stages.nerf import run_nerf
 
     out = out or capture_dir.parent / "nerf" / model
     m = run_nerf(capture_dir, poses, model, minutes, out, reference, downsample, seed, resume=resume, quiet=quiet,
-                 cluster=_cluster(scheduler, workers))
+                 cluster=_cluster(scheduler, workers), overwrite=overwrite)
     mt = m["metrics"]
     typer.echo(f"nerf {model}: PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} after {mt['steps']} steps "
                f"in {mt['train_s']:.0f} s -> {out}")
@@ -182,14 +189,15 @@ def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
 @app.command()
 def validate(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts folder (artifacts/<scene>)"),
              out: Optional[Path] = typer.Option(None, help="folder (default <artifacts_dir>/validate)"),
-             quiet: bool = QUIET):
+             quiet: bool = QUIET,
+             overwrite: bool = OVERWRITE):
     """Judge every finished model (slab, NeRF, ...) against the reference at the held-out views."""
     from .stages.validate import run_validate
 
     from .artifacts import read_json
 
     out = out or artifacts_dir / "validate"
-    run_validate(artifacts_dir, out, quiet=quiet)
+    run_validate(artifacts_dir, out, quiet=quiet, overwrite=overwrite)
     models = read_json(out / "metrics.json")["models"]
     for name, row in models.items():
         typer.echo(f"validate: {name:24s} PSNR {row['psnr_mean']:6.2f} dB  SSIM {row['ssim_mean']:.4f}  "
@@ -199,11 +207,12 @@ def validate(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts
 
 @app.command()
 def report(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts folder with a finished validate stage"),
-           out: Optional[Path] = typer.Option(None, help="file (default <artifacts_dir>/validate/report.html)")):
+           out: Optional[Path] = typer.Option(None, help="file (default <artifacts_dir>/validate/report.html)"),
+           overwrite: bool = typer.Option(False, "--overwrite", help="replace --out even when it is not a report")):
     """Write a self-contained report.html: every stage, side-by-side views, accuracy against time."""
     from .report import write_report
 
-    typer.echo(f"report: {write_report(artifacts_dir, out)}")
+    typer.echo(f"report: {write_report(artifacts_dir, out, overwrite=overwrite)}")
 
 
 @app.command()
@@ -212,7 +221,8 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
           out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/study)"),
           seed: int = typer.Option(0, help="seed"),
           root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
-          quiet: bool = QUIET):
+          quiet: bool = QUIET,
+          overwrite: bool = OVERWRITE):
     """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time."""
     from .stages.study import run_study
 
@@ -220,7 +230,7 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
 
     spec, _ = load_spec(scene)
     out = out or stage_dir(spec.name, "study", root)
-    m = run_study(scene, out, profile=profile, seed=seed, root=root, quiet=quiet)
+    m = run_study(scene, out, profile=profile, seed=seed, root=root, quiet=quiet, overwrite=overwrite)
     typer.echo(f"study: {m['metrics']['points']} points ({m['metrics']['failed']} failed) "
                f"in {m['wall_time_s']:.0f} s -> {out}")
 
@@ -244,7 +254,8 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
         nerf_minutes: float = typer.Option(4.0, help="NeRF training budget (0: skip the NeRF)"),
         scheduler: Optional[str] = SCHEDULER,
         workers: Optional[int] = WORKERS,
-        quiet: bool = QUIET):
+        quiet: bool = QUIET,
+        overwrite: bool = OVERWRITE):
     """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, NeRF, validate,
     report; ends with the report's path. One engine (in process, a local cluster or --scheduler's)
     serves every stage's units of work."""
@@ -253,7 +264,7 @@ def run(scene: str = typer.Argument("turntable", help="built-in scene name or pa
     rig, path = _load(scene)
     summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, colmap_image_scale=colmap_image_scale,
                            nerf_model=nerf_model, nerf_minutes=nerf_minutes, quiet=quiet,
-                           cluster=_cluster(scheduler, workers))
+                           cluster=_cluster(scheduler, workers), overwrite=overwrite)
     for line in summary:
         typer.echo(line)
 

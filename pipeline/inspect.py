@@ -9,6 +9,8 @@ from PIL import Image, ImageDraw
 from rich.console import Console
 from rich.table import Table
 
+from render.image_io import atomic_path
+
 from .artifacts import MANIFEST, BadInput, read_manifest, sha256_file
 
 __all__ = ["inspect_folder", "contact_sheet", "CONTACT_SHEET"]
@@ -16,26 +18,46 @@ __all__ = ["inspect_folder", "contact_sheet", "CONTACT_SHEET"]
 CONTACT_SHEET = "contact_sheet.png"
 
 
+def _thumbnail(path: Path, size: tuple[int, int]) -> Image.Image:
+    """``path`` decoded and shrunk to fit ``size``; BadInput naming the file when it is not a
+    readable image (random bytes, truncated), so nothing is written."""
+    try:
+        with Image.open(path) as im:
+            im = im.convert("RGB")
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:  # UnidentifiedImageError is an OSError
+        reason = (str(exc).splitlines()[0] if str(exc) else type(exc).__name__).replace(f"'{path}'", "file")
+        raise BadInput(f"{path}: unreadable PNG preview ({reason}); --no-sheet skips the contact sheet") from None
+    im.thumbnail(size)
+    return im
+
+
 def contact_sheet(images: list[Path], out: Path, thumb: int = 160, columns: int = 8) -> Path:
-    """Tile PNG previews into one labelled sheet (row-major, names under each thumbnail)."""
+    """Tile PNG previews into one labelled sheet (row-major, names under each thumbnail).
+
+    Every preview is decoded before the sheet is written: an unreadable one is BadInput naming it,
+    and no sheet is written."""
     if not images:
         raise BadInput("no PNG images to put on a contact sheet")
     rows = (len(images) + columns - 1) // columns
     label_h = 14
-    with Image.open(images[0]) as first:  # cells take the first image's aspect ratio
-        cell_h = max(1, round(thumb * first.height / first.width))
+    first = _thumbnail(images[0], (thumb, thumb * 4))  # cells take the first image's aspect ratio
+    cell_h = max(1, round(thumb * first.height / first.width))
+    thumbs = [_thumbnail(p, (thumb, cell_h)) for p in images]
     sheet = Image.new("RGB", (columns * thumb, rows * (cell_h + label_h)), (24, 24, 24))
     draw = ImageDraw.Draw(sheet)
-    for i, path in enumerate(images):
-        im = Image.open(path).convert("RGB")
-        im.thumbnail((thumb, cell_h))
+    for i, (path, im) in enumerate(zip(images, thumbs)):
         x, y = (i % columns) * thumb, (i // columns) * (cell_h + label_h)
         sheet.paste(im, (x + (thumb - im.width) // 2, y + (cell_h - im.height) // 2))
         draw.text((x + 3, y + cell_h), path.stem[:24], fill=(220, 220, 220))
-    tmp = out.with_name(f".{out.name}.partial")
-    sheet.save(tmp, format="PNG")
-    tmp.replace(out)
+    with atomic_path(out) as tmp:
+        sheet.save(tmp, format="PNG")
     return out
+
+
+def _inside(folder: Path, rel: str) -> bool:
+    """``rel`` names a path inside ``folder`` (relative, no '..' component)."""
+    p = Path(rel)
+    return bool(rel) and not p.is_absolute() and ".." not in p.parts
 
 
 def _preview_images(folder: Path) -> list[Path]:
@@ -53,6 +75,9 @@ def inspect_folder(folder: Path, console: Console | None = None, sheet: bool = T
     manifest = read_manifest(folder)
     console = console or Console()
     outputs: dict[str, str] = manifest.get("outputs", {})
+    escaping = [p for p in outputs if not _inside(folder, p)]
+    if escaping:
+        raise BadInput(f"{folder / MANIFEST}: field 'outputs': {escaping[0]!r} is not a path inside the folder")
     missing = [p for p in outputs if not (folder / p).is_file()]
     changed = [p for p in outputs if p not in missing and sha256_file(folder / p) != outputs[p]]
     kinds = Counter(str(Path(p).parent) if Path(p).parent != Path(".") else Path(p).suffix or p for p in outputs)

@@ -34,7 +34,7 @@ def slab_layout_for(rig: RigScene):
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
                  colmap_image_scale: float = 0.5, nerf_model: str = "fast", nerf_minutes: float = 4.0,
-                 quiet: bool = False, cluster: ClusterConfig | None = None) -> list[str]:
+                 quiet: bool = False, cluster: ClusterConfig | None = None, overwrite: bool = False) -> list[str]:
     """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab (direct,
     and rebinned on COLMAP's cameras when they exist; layout :func:`slab_layout_for`), NeRF,
     validate and report.
@@ -65,7 +65,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
         t0 = time.perf_counter()
         lines = []
         cap = stage_dir(name, "capture", root)
-        m = run_capture(rig, scene_file, cap, seed, quiet, eng)
+        m = run_capture(rig, scene_file, cap, seed, quiet, eng, overwrite=overwrite)
         lines.append(f"capture    {m['metrics']['views']} views, {m['params']['renderer']}, {m['wall_time_s']:.1f} s")
         if not quiet:
             inspect_folder(cap)
@@ -73,7 +73,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
             lines.append("no held-out views: the model stages need a 'test' split; stopping after capture")
             return lines
         ref = stage_dir(name, "reference", root)
-        m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet, cluster=eng)
+        m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet, cluster=eng, overwrite=overwrite)
         lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
                      f"{m['wall_time_s']:.1f} s")
         methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])
@@ -81,7 +81,8 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
         for method in methods:
             out = stage_dir(name, f"poses/{method}", root)
             try:
-                m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet)
+                m = run_poses(cap, method, out, PosesConfig(colmap=ColmapConfig(image_scale=colmap_image_scale)), quiet,
+                              overwrite=overwrite)
             except BadInput as exc:
                 lines.append(f"poses      {method}: failed: {exc}")
                 continue
@@ -96,22 +97,23 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
 
         layout = slab_layout_for(rig)
         m = run_slab(cap, None, stage_dir(name, "slab", root), SlabStageConfig(layout=layout), reference_dir=ref,
-                     quiet=quiet, cluster=eng)
+                     quiet=quiet, cluster=eng, overwrite=overwrite)
         lines.append(slab_line("slab", m))
         if "colmap" in estimated:
             m = run_slab(cap, estimated["colmap"], stage_dir(name, "slab-colmap", root),
-                         SlabStageConfig(method="rebin", layout=layout), reference_dir=ref, quiet=quiet, cluster=eng)
+                         SlabStageConfig(method="rebin", layout=layout), reference_dir=ref, quiet=quiet, cluster=eng,
+                         overwrite=overwrite)
             lines.append(slab_line("slab-colmap", m))
         if nerf_minutes > 0:
             m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
-                         seed=seed or 0, quiet=quiet, cluster=eng)
+                         seed=seed or 0, quiet=quiet, cluster=eng, overwrite=overwrite)
             mt = m["metrics"]
             lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
                          f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")
-        m = run_validate(stage_dir(name, "", root), quiet=quiet)
+        m = run_validate(stage_dir(name, "", root), quiet=quiet, overwrite=overwrite)
         best = m["metrics"]["best"]
         lines.append(f"validate   {m['metrics']['models']} models; best at the held-out views: {best}")
-        report = write_report(stage_dir(name, "", root))
+        report = write_report(stage_dir(name, "", root), overwrite=overwrite)
         lines.append(f"total      {time.perf_counter() - t0:.1f} s; artifacts in {Path(root) / name}")
         lines.append(f"report     {report}")
     return lines

@@ -36,6 +36,8 @@ from .artifacts import MANIFEST, BadInput, read_json
 __all__ = ["Series", "svg_plot", "pareto_mask", "write_report", "REPORT", "PALETTE"]
 
 REPORT = "report.html"
+#: marks a file as a report this module wrote: ``--out`` replaces such a file, no other
+GENERATOR_TAG = '<meta name="generator" content="lumigraph report">'
 PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
            "#7f7f7f", "#bcbd22")
 
@@ -456,13 +458,35 @@ def _stages_section(root: Path) -> str:
     return _table(["folder", "stage", "wall time", "files", "size", "produced", "headline metrics"], rows, cls)
 
 
-def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 4, thumb: int = 320) -> Path:
+def _check_report_out(path: Path, overwrite: bool) -> None:
+    """BadInput unless ``path`` may be (over)written: absent, or a report this module wrote (its
+    generator tag), or any file when ``overwrite``; never a folder."""
+    from .artifacts import OVERWRITE_HINT
+
+    if path.is_dir():
+        raise BadInput(f"{path}: is a folder; --out names the report file to write")
+    if overwrite or not (path.exists() or path.is_symlink()):
+        return
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError as exc:
+        raise BadInput(f"{path}: cannot read the existing file ({exc.strerror})") from None
+    if GENERATOR_TAG.encode() not in head:
+        raise BadInput(f"{path}: exists and is not a lumigraph report; refusing to replace it ({OVERWRITE_HINT})")
+
+
+def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 4, thumb: int = 320,
+                 overwrite: bool = False) -> Path:
     """Write the scene's report (default ``artifacts_dir/validate/report.html``) from its finished
     ``validate`` stage and the other stage folders; returns its path. BadInput when the validate
-    stage is missing or unfinished. Images are embedded, downscaled to ``thumb`` pixels wide;
-    side-by-side views show the first ``max_views`` held-out views."""
+    stage is missing or unfinished, or when ``out`` is an existing file that is not a report
+    (tagged :data:`GENERATOR_TAG`) and not ``overwrite``. Images are embedded, downscaled to
+    ``thumb`` pixels wide; side-by-side views show the first ``max_views`` held-out views."""
     from .artifacts import read_manifest
 
+    if out is not None:
+        _check_report_out(Path(out), overwrite)  # before any work
     root = Path(artifacts_dir)
     vdir = root / "validate"
     vman = read_manifest(vdir)
@@ -489,7 +513,7 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
             "<h2>Pose accuracy</h2>", _poses_section(met.get("poses", {})),
             "<h2>Stages: what each produced</h2>", _stages_section(root)]
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>lumigraph report: {e(scene)}</title>"
+            f"<title>lumigraph report: {e(scene)}</title>{GENERATOR_TAG}"
             '<meta http-equiv="Content-Security-Policy" content="default-src \'none\'; img-src data:; '
             "style-src 'unsafe-inline'\">"
             f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")

@@ -20,20 +20,74 @@ from pathlib import Path
 
 import numpy as np
 
-from render.camera_io import write_cameras_json, write_colmap_text, write_transforms_json
-from render.image_io import write_exr, write_png, write_preview
+from render.camera import Camera
+from render.camera_io import read_cameras_json, write_cameras_json, write_colmap_text, write_transforms_json
+from render.image_io import exr_size, png_size, write_exr, write_png, write_preview
 from rig.build import RigScene
 from rig.capture import (CAPTURE_SPP, CapturedView, CapturePlan, capture_list, check_capture, finish_view,
                          plan_capture, render_ideal, sensor_config)
 
-from ..artifacts import Manifest, atomic_stage, write_json
+from ..artifacts import BadInput, Manifest, atomic_stage, check_out, read_stage_manifest, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import console, progress_bar
 from ..renderers import prepared_scene, raster_pool
 
-__all__ = ["run_capture", "capture_view", "SPLITS"]
+__all__ = ["run_capture", "capture_view", "check_capture_folder", "read_cameras", "SPLITS", "VIEW_FILES"]
 
 SPLITS = ("train", "test")
+#: a view's files in a capture folder: kind -> (sub-folder, suffix)
+VIEW_FILES = {"images": ("images", ".png"), "linear": ("linear", ".exr"), "depth": ("depth", ".exr"),
+              "masks": ("masks", ".png")}
+
+
+def read_cameras(path: Path) -> tuple[list[Camera], list[str]]:
+    """A stage input's ``cameras.json`` (:func:`render.camera_io.read_cameras_json`: view names
+    are plain file stems, poses rigid and finite, intrinsics finite): ``(cameras, splits)``;
+    BadInput, one line naming the file and field, on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise BadInput(f"{path}: no camera file (cameras.json missing)")
+    try:
+        return read_cameras_json(path)
+    except (ValueError, FileNotFoundError) as exc:
+        raise BadInput(str(exc).splitlines()[0]) from None
+
+
+def check_capture_folder(folder: Path, need: tuple[str, ...] = ("images", "linear")) -> tuple[list[Camera], list[str]]:
+    """Check a capture folder before a later stage reads it; returns its ``(cameras, splits)``.
+
+    A finished capture stage (``manifest.json`` whose stage is "capture"), a valid ``cameras.json``
+    and, for every view, the files of the kinds in ``need`` (:data:`VIEW_FILES`); every view file
+    present of any kind must be a readable image (its header) of the view's size, all views one
+    size. Headers only: decoding stays with the reader. BadInput, one line naming the file (and
+    field), on the first problem."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise BadInput(f"{folder}: no such capture folder")
+    read_stage_manifest(folder, "capture")
+    cameras, splits = read_cameras(folder / "cameras.json")
+    first = None
+    for cam in cameras:
+        k = cam.intrinsics
+        for kind, (sub, suffix) in VIEW_FILES.items():
+            p = folder / sub / f"{cam.name}{suffix}"
+            if not p.is_file():
+                if kind in need:
+                    raise BadInput(f"{p}: image missing for view {cam.name!r}")
+                continue
+            try:
+                w, h = png_size(p) if suffix == ".png" else exr_size(p)
+            except ValueError as exc:
+                reason = str(exc).splitlines()[0].replace(f"{p}: ", "", 1)
+                raise BadInput(f"{p}: unreadable image: {reason}") from None
+            if first is None:
+                first = (p, w, h)
+            elif (w, h) != first[1:]:
+                raise BadInput(f"{p}: image is {w}x{h} but {first[0].relative_to(folder)} is "
+                               f"{first[1]}x{first[2]} (mixed image sizes)")
+            if (w, h) != (k.width, k.height):
+                raise BadInput(f"{p}: image is {w}x{h} but cameras.json says {k.width}x{k.height} for view {cam.name!r}")
+    return cameras, splits
 
 
 def capture_view(scene, scene_key: str, plan: CapturePlan, sensor, seed: int, threads: int, gl_threads: int | None,
@@ -49,12 +103,16 @@ def capture_view(scene, scene_key: str, plan: CapturePlan, sensor, seed: int, th
 
 
 def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = None, quiet: bool = False,
-                cluster: ClusterConfig | LocalEngine | DaskEngine | None = None) -> dict:
+                cluster: ClusterConfig | LocalEngine | DaskEngine | None = None, overwrite: bool = False) -> dict:
     """Capture ``rig`` into ``out`` atomically; returns the manifest.
+
+    ``out`` may be absent, empty or a finished capture folder; anything else is refused
+    (BadInput, before any work) unless ``overwrite`` (:func:`pipeline.artifacts.check_out`).
 
     cluster: where the views run (pipeline.distributed): None (default) in this process; a
     :class:`ClusterConfig` for a local or existing Dask cluster, or an engine already open. The
     output files are the same bytes either way."""
+    check_out(out, "capture", overwrite)
     seed = rig.spec.seed if seed is None else seed
     plan = plan_capture(rig)
     splits = tuple(s for s in SPLITS if s in rig.cameras) or ("scene",)
@@ -69,7 +127,7 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
     check_capture(rig, plan)
     n_views = len(views)
     cameras, split_of = [c for _, c in views], [s for s, _ in views]
-    with atomic_stage(out) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
+    with atomic_stage(out, "capture", overwrite) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
         task = bar.add_task(f"capture {rig.scene.name}", total=n_views, info=plan.renderer)
 
         def write_view(_: int, view: CapturedView) -> None:

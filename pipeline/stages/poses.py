@@ -33,8 +33,10 @@ ever visible, a folded turntable circle, a pose error above the gate). Both prom
 * :func:`run_poses` raises :class:`pipeline.artifacts.BadInput` whose one line names the
   reason and the metrics file, so the CLI exits 2.
 
-Bad input (no capture folder, no ``cameras.json``, missing / unreadable / mixed-size images,
-no ``targets.json`` for ChArUco) raises BadInput before anything is written.
+Bad input (no capture folder, no finished capture's ``manifest.json``, no or a malformed
+``cameras.json`` (NaN poses, view names that are not plain file stems), missing / unreadable /
+mixed-size images, no ``targets.json`` for ChArUco) raises BadInput before anything is written:
+a failure folder records a method's finding on a valid capture, never damaged input.
 """
 from __future__ import annotations
 
@@ -51,12 +53,14 @@ import numpy as np
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, estimate_charuco,
                          estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
 from render.camera import Camera
-from render.camera_io import write_cameras_json, write_colmap_text, write_transforms_json, read_cameras_json
+from render.camera_io import write_cameras_json, write_colmap_text, write_transforms_json
 
-from ..artifacts import BadInput, Manifest, atomic_stage, write_json
+from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
 from ..progress import progress_bar
+from .capture import check_capture_folder
 
-__all__ = ["METHODS", "QualityGates", "PosesConfig", "Capture", "load_capture", "estimate_poses", "run_poses"]
+__all__ = ["METHODS", "QualityGates", "PosesConfig", "Capture", "load_capture", "estimate_poses", "run_poses",
+           "check_poses"]
 
 METHODS = ("gt", "colmap", "charuco")
 
@@ -105,33 +109,17 @@ class PoseFailure(Exception):
 
 
 def load_capture(folder: Path, need_targets: bool = False) -> Capture:
-    """Read and check a capture folder; BadInput (one line naming the file) on any problem."""
+    """Read and check a capture folder (:func:`pipeline.stages.capture.check_capture_folder`: a finished
+    capture, valid cameras.json, every view's PNG of its camera's size); BadInput (one line
+    naming the file) on any problem."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise BadInput(f"{folder}: no such capture folder")
-    cam_file = folder / "cameras.json"
-    if not cam_file.is_file():
-        raise BadInput(f"{cam_file}: no camera file in the capture")
-    try:
-        cameras, splits = read_cameras_json(cam_file)
-    except (ValueError, FileNotFoundError) as exc:
-        raise BadInput(str(exc).splitlines()[0]) from None
-    images, size = {}, None
+    cameras, splits = check_capture_folder(folder, need=("images",))
+    images = {}
     for c in cameras:
         p = folder / "images" / f"{c.name}.png"
-        if not p.is_file():
-            raise BadInput(f"{p}: image missing for view {c.name!r}")
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None or img.dtype != np.uint8:
             raise BadInput(f"{p}: unreadable image (not an 8-bit PNG)")
-        hw = img.shape[:2]
-        if size is None:
-            size, first = hw, p
-        elif hw != size:
-            raise BadInput(f"{p}: image is {hw[1]}x{hw[0]} but {first.name} is {size[1]}x{size[0]} (mixed image sizes)")
-        k = c.intrinsics
-        if (k.height, k.width) != hw:
-            raise BadInput(f"{p}: image is {hw[1]}x{hw[0]} but cameras.json says {k.width}x{k.height}")
         images[c.name] = p
     targets = {}
     t_file = folder / "targets.json"
@@ -145,6 +133,41 @@ def load_capture(folder: Path, need_targets: bool = False) -> Capture:
     elif need_targets:
         raise BadInput(f"{t_file}: no calibration targets in the capture (needed by --method charuco)")
     return Capture(folder, cameras, splits, images, targets)
+
+
+def check_poses(poses_dir: Path, capture_dir: Path, cameras: list[Camera], splits: list[str]) -> list[Camera]:
+    """The estimated cameras of a finished poses folder, checked against the capture they are used
+    with (``cameras``/``splits``: the capture's): every view name is one of the capture's, in the
+    same split, at the same image size, and the folder was estimated from a capture with these
+    very cameras (the hash of the cameras.json its manifest lists as input). BadInput, one line
+    naming the file and field, otherwise (e.g. ``--poses`` of another scene)."""
+    from ..artifacts import read_stage_manifest, sha256_file
+    from .capture import read_cameras
+
+    poses_dir = Path(poses_dir)
+    if not poses_dir.is_dir():
+        raise BadInput(f"--poses {poses_dir}: no such folder")
+    manifest = read_stage_manifest(poses_dir, "poses")
+    cam_file = poses_dir / "cameras.json"
+    est, est_splits = read_cameras(cam_file)
+    truth = {c.name: (c, s) for c, s in zip(cameras, splits)}
+    for c, s in zip(est, est_splits):
+        if c.name not in truth:
+            raise BadInput(f"{cam_file}: field 'name': view {c.name!r} is not in the capture {capture_dir} "
+                           "(poses of another scene?)")
+        t, ts = truth[c.name]
+        if s != ts:
+            raise BadInput(f"{cam_file}: field 'split': view {c.name!r} is {s!r} here but {ts!r} in the capture")
+        k, kt = c.intrinsics, t.intrinsics
+        if (k.width, k.height) != (kt.width, kt.height):
+            raise BadInput(f"{cam_file}: field 'intrinsics': view {c.name!r} is {k.width}x{k.height} here but "
+                           f"{kt.width}x{kt.height} in the capture")
+    want = sha256_file(Path(capture_dir) / "cameras.json")
+    used = [h for p, h in manifest.get("inputs", {}).items() if Path(p).name == "cameras.json"]
+    if used and want not in used:
+        raise BadInput(f"{poses_dir / 'manifest.json'}: field 'inputs': estimated from a capture with other "
+                       f"cameras than {Path(capture_dir) / 'cameras.json'} (poses of another capture?)")
+    return est
 
 
 def _prefixed(prefix: str, d: dict) -> dict:
@@ -248,14 +271,17 @@ def _write_cameras(folder: Path, cap: Capture, cams: list[Camera], out_final: Pa
 
 
 def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = PosesConfig(),
-              quiet: bool = False) -> dict:
+              quiet: bool = False, overwrite: bool = False) -> dict:
     """Estimate poses of ``capture_dir`` with ``method`` into ``out`` atomically; returns the manifest.
 
     On failure writes the failure folder described in the module docstring and raises BadInput.
+    ``out`` may be absent, empty, a finished poses folder or a failure folder; anything else is
+    refused before any work unless ``overwrite`` (:func:`pipeline.artifacts.check_out`).
     """
     if method not in METHODS:
         raise BadInput(f"--method: unknown method {method!r} (known: {', '.join(METHODS)})")
     out = Path(out)
+    check_out(out, "poses", overwrite)
     cap = load_capture(capture_dir, need_targets=method == "charuco")
     params = {"method": method, "capture": str(capture_dir), **({"colmap": asdict(config.colmap)} if method == "colmap"
               else {"charuco": asdict(config.charuco)} if method == "charuco" else {}), "gates": asdict(config.gates)}
@@ -271,12 +297,12 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
         except PoseFailure as fail:
             metrics = {**fail.metrics, "status": "failed", "reason": fail.reason,
                        "wall_time_s": round(time.time() - manifest.started, 3)}
-            with atomic_stage(out) as tmp:
+            with atomic_stage(out, "poses", overwrite) as tmp:
                 write_json(tmp / "metrics.json", metrics)
             raise BadInput(f"poses {method}: {fail.reason} (see {out / 'metrics.json'})") from None
         bar.advance(task)
     metrics["wall_time_s"] = round(time.time() - manifest.started, 3)
-    with atomic_stage(out) as tmp:
+    with atomic_stage(out, "poses", overwrite) as tmp:
         _write_cameras(tmp, cap, cams, out)
         if rec is not None:
             (tmp / "sparse").mkdir()

@@ -163,7 +163,7 @@ def finish_view(acc: tuple[Film, dict]) -> tuple[np.ndarray, np.ndarray, dict]:
 
 def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, size: tuple[int, int] | None = None,
                   views: str = "auto", integrator: str = "auto", seed: int = 0, max_depth: int = 8,
-                  quiet: bool = False, cluster: ClusterConfig | None = None) -> dict:
+                  quiet: bool = False, cluster: ClusterConfig | None = None, overwrite: bool = False) -> dict:
     """Render the chosen views with the path tracer into ``out`` atomically; returns the manifest.
 
     views: auto | test | all | scene (:func:`select_views`). spp is bounded by MAX_SPP and each
@@ -201,7 +201,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
     batches = pathtracer.work_units(chosen_integrator, spp, SAMPLE_BATCH)  # spp <= MAX_SPP: a bounded list
     manifest.params["units_per_view"] = len(batches)
     per_view, totals = {}, {}
-    with atomic_stage(out) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
+    with atomic_stage(out, "reference", overwrite) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
         task = bar.add_task(f"reference {rig.scene.name}", total=len(chosen) * len(batches),
                             info=f"{chosen_integrator}, {spp} spp")
         scene = eng.share(rig.scene)

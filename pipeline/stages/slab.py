@@ -43,14 +43,13 @@ import numpy as np
 from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
                         compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
-from render.camera_io import read_cameras_json
 from render.color import to_srgb8
 from render.image_io import read_exr, write_exr, write_png, write_preview
 from render.metrics import psnr, ssim
 from render.slab import MODES, LightSlab, render_view
 from render.slab_io import load_slabs, save_slabs, slab_file_bytes
 
-from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, write_json
+from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import progress_bar
 from ..renderers import prepared_scene, raster_pool
@@ -92,13 +91,9 @@ class SlabStageConfig:
 
 
 def _cameras(folder: Path) -> tuple[list[Camera], list[str]]:
-    path = Path(folder) / "cameras.json"
-    if not path.is_file():
-        raise BadInput(f"{path}: file not found")
-    try:
-        return read_cameras_json(path)
-    except ValueError as exc:
-        raise BadInput(str(exc).splitlines()[0]) from None
+    from .capture import read_cameras
+
+    return read_cameras(Path(folder) / "cameras.json")
 
 
 def _read_image(path: Path, shape: tuple[int, ...]) -> np.ndarray:
@@ -106,8 +101,8 @@ def _read_image(path: Path, shape: tuple[int, ...]) -> np.ndarray:
         raise BadInput(f"{path}: file not found")
     try:
         a = read_exr(path)
-    except Exception as exc:  # OpenEXR raises assorted errors on corrupt files
-        raise BadInput(f"{path}: unreadable EXR ({type(exc).__name__})") from None
+    except ValueError as exc:  # read_exr names the file and OpenEXR's reason
+        raise BadInput(str(exc).splitlines()[0]) from None
     if a.shape != shape:
         raise BadInput(f"{path}: shape {a.shape}, expected {shape}")
     if not np.all(np.isfinite(a)):
@@ -361,17 +356,26 @@ def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray]
 
 
 def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabStageConfig = SlabStageConfig(),
-             reference_dir: Path | None = None, quiet: bool = False, cluster: Cluster = None) -> dict:
+             reference_dir: Path | None = None, quiet: bool = False, cluster: Cluster = None,
+             overwrite: bool = False) -> dict:
     """Build slabs from ``capture_dir`` into ``out`` (atomically), render the held-out views in
     every interpolation mode and score them; returns the manifest.
+
+    Inputs are checked before any work (:func:`pipeline.stages.capture.check_capture_folder`, and
+    :func:`pipeline.stages.poses.check_poses` for ``poses_dir``); ``out`` may be absent, empty or
+    a finished slab folder, anything else is refused unless ``overwrite``.
 
     cluster: where the units of work run (module docstring): None (default) in this process; a
     :class:`ClusterConfig` for a local or existing Dask cluster, or an engine already open. The
     output files are the same bytes either way (metrics.json's timings aside)."""
+    from .capture import check_capture_folder
+    from .poses import check_poses
+
     capture_dir = Path(capture_dir)
-    if not capture_dir.is_dir():
-        raise BadInput(f"{capture_dir}: no such capture folder")
-    cams, splits = _cameras(capture_dir)
+    check_out(out, "slab", overwrite)
+    cams, splits = check_capture_folder(capture_dir, need=("linear", "depth"))
+    if poses_dir is not None:
+        check_poses(poses_dir, capture_dir, cams, splits)
     test = [c for c, s in zip(cams, splits) if s == "test"]
     if not test:
         raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
@@ -387,7 +391,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
         manifest.add_input(Path(poses_dir) / "cameras.json")
     for c in test:
         manifest.add_input(ref_dir / "linear" / f"{c.name}.exr")
-    with atomic_stage(out) as tmp, engine(cluster, quiet) as eng:
+    with atomic_stage(out, "slab", overwrite) as tmp, engine(cluster, quiet) as eng:
         slabs, info = build_slabs(capture_dir, tmp / "slabs", config, poses_dir, quiet, eng)
         slabs = load_slabs(tmp / "slabs")  # memory-mapped read-only, as a reader will see them
         bg = np.asarray(info.get("background", (0.0, 0.0, 0.0)), np.float32)

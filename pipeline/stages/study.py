@@ -51,7 +51,7 @@ import yaml
 
 from render.image_io import atomic_path, read_exr
 
-from ..artifacts import BadInput, Manifest, atomic_stage, read_json, write_json
+from ..artifacts import BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..progress import progress_bar
 from ..report import Series, pareto_mask, svg_plot
 from .validate import ValidateConfig, compare_view, reference_at
@@ -354,10 +354,11 @@ def _front_svg(rows: list[dict], title: str, ylabel: str, accuracy: str, cost: s
 
 
 def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick", config: StudyConfig | None = None,
-              seed: int = 0, root: Path = Path("artifacts"), quiet: bool = False) -> dict:
+              seed: int = 0, root: Path = Path("artifacts"), quiet: bool = False, overwrite: bool = False) -> dict:
     """Sweep every stage's accuracy knob on ``scene`` (a built-in name or YAML path) with
     ``profile``'s settings (or ``config``); writes ``out`` (default ``root/<scene>/study``)
-    atomically and returns the manifest. BadInput on an unknown profile or a bad scene."""
+    atomically and returns the manifest. BadInput on an unknown profile or a bad scene, or when
+    ``out`` holds something else than a finished study (unless ``overwrite``)."""
     from rig.build import load_scene
 
     from .capture import run_capture
@@ -371,9 +372,10 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
 
     spec, _ = load_spec(scene)  # SpecError (exit 2) on a bad scene, before anything is written
     out = Path(out) if out is not None else Path(root) / spec.name / "study"
+    check_out(out, "study", overwrite)
     manifest = Manifest("study", params={"scene": str(scene), "profile": profile, "seed": seed, **asdict(config)})
     t_start = time.perf_counter()
-    with atomic_stage(out) as tmp:
+    with atomic_stage(out, "study", overwrite) as tmp:
         work = tmp / ".work"
         scene_file = derived_scene(scene, work, config.size_scale, config.test_views)
         rig = load_scene(scene_file)

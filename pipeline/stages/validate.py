@@ -60,13 +60,14 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from render.camera_io import read_cameras_json
 from render.color import to_srgb8
 from render.image_io import atomic_path, read_exr, write_png
 from render.metrics import mse_to_psnr, psnr, ssim
 
-from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, read_json, read_manifest, write_json
+from ..artifacts import (MANIFEST, BadInput, Manifest, atomic_stage, check_file_stem, check_out, read_json,
+                         read_manifest, read_stage_manifest, write_json)
 from ..progress import progress_bar
+from .capture import read_cameras
 
 __all__ = ["ValidateConfig", "ModelDir", "discover_models", "reference_views", "compare_view", "z_scores",
            "error_png", "zmap_png", "run_validate", "NOT_MODELS", "reference_at", "area_average", "pose_summary"]
@@ -130,13 +131,10 @@ def reference_views(reference_dir: Path) -> list[str]:
     reference_dir = Path(reference_dir)
     cam_file = reference_dir / "cameras.json"
     if cam_file.is_file():
-        try:
-            cams, splits = read_cameras_json(cam_file)
-        except ValueError as exc:
-            raise BadInput(f"{cam_file}: {str(exc).splitlines()[0]}") from None
+        cams, splits = read_cameras(cam_file)  # view names are plain file stems: they name our files
         names = [c.name for c, s in zip(cams, splits) if s == "test"] or [c.name for c in cams]
     else:
-        names = sorted(p.stem for p in (reference_dir / "linear").glob("*.exr"))
+        names = [check_file_stem(p.stem, str(p)) for p in sorted((reference_dir / "linear").glob("*.exr"))]
     if not names:
         raise BadInput(f"{reference_dir}: no reference views (linear/<view>.exr)")
     return names
@@ -148,8 +146,8 @@ def _read(path: Path, shape: tuple[int, ...] | None = None) -> np.ndarray:
         raise BadInput(f"{path}: file not found")
     try:
         a = read_exr(path)
-    except Exception as exc:  # OpenEXR raises assorted errors on corrupt files
-        raise BadInput(f"{path}: unreadable EXR ({type(exc).__name__})") from None
+    except ValueError as exc:  # read_exr names the file and OpenEXR's reason
+        raise BadInput(str(exc).splitlines()[0]) from None
     if a.ndim == 2 and shape is not None and len(shape) == 3:
         a = np.repeat(a[..., None], shape[2], axis=2)
     if shape is not None and a.shape != shape:
@@ -268,7 +266,7 @@ def _wall(folder: Path) -> float | None:
     f = Path(folder) / MANIFEST
     if not f.is_file():
         return None
-    t = read_json(f).get("wall_time_s")
+    t = read_manifest(folder).get("wall_time_s")
     return float(t) if isinstance(t, (int, float)) else None
 
 
@@ -283,6 +281,8 @@ def pose_summary(artifacts_dir: Path) -> dict:
         if f.parent.name.startswith("."):
             continue
         m = read_json(f)
+        if not isinstance(m, dict):
+            raise BadInput(f"{f}: expected a JSON object of pose metrics")
         out[f.parent.name] = {k: m[k] for k in keys if k in m and (m[k] is None or isinstance(m[k], (int, float, str)))}
     return out
 
@@ -319,17 +319,20 @@ def _write_csv(path: Path, rows: list[dict], columns: list[str]) -> None:
 
 
 def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateConfig = ValidateConfig(),
-                 quiet: bool = False) -> dict:
+                 quiet: bool = False, overwrite: bool = False) -> dict:
     """Judge every model under ``artifacts_dir`` (``artifacts/<scene>``) against its finished
     ``reference`` stage; writes ``out`` (default ``artifacts_dir/validate``) atomically and returns
     the manifest. BadInput (one line naming the file) when the reference is missing or unfinished,
-    no finished model exists, or a model lacks a held-out view or has it at the wrong size."""
+    no finished model exists, or a model lacks a held-out view or has it at the wrong size.
+    ``out`` may be absent, empty or a finished validate folder (its report.html goes with it),
+    anything else is refused before any work unless ``overwrite``."""
     artifacts_dir = Path(artifacts_dir)
     if not artifacts_dir.is_dir():
         raise BadInput(f"{artifacts_dir}: no such artifacts folder")
     out = Path(out) if out is not None else artifacts_dir / "validate"
+    check_out(out, "validate", overwrite)
     ref_dir = artifacts_dir / "reference"
-    ref_manifest = read_manifest(ref_dir)
+    ref_manifest = read_stage_manifest(ref_dir, "reference")
     views = reference_views(ref_dir)
     found = discover_models(artifacts_dir)
     models = [m for m in found if m.finished]
@@ -362,10 +365,10 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
     # what an empty (black) image scores: a model must beat this to have rendered anything
     reference["psnr_black_mean"] = _mean([psnr(np.zeros_like(r), r) for r, _ in refs.values()])
     results, view_rows = {}, []
-    with atomic_stage(out) as tmp, progress_bar(quiet) as bar:
+    with atomic_stage(out, "validate", overwrite) as tmp, progress_bar(quiet) as bar:
         task = bar.add_task("validate", total=len(models) * len(views), info=f"{len(models)} models")
         for m in models:
-            mm = read_json(m.folder / MANIFEST)
+            mm = read_manifest(m.folder)
             per_view = {}
             for v in views:
                 ref, var = refs[v]
