@@ -24,29 +24,59 @@ the held-out views are then rendered and scored one view per unit of work (pipel
 
 While training, checkpoints go to a hidden ``.<model>.resume.pt`` beside the stage folder, so an
 interrupted run resumes with ``resume=True`` and a finished folder never looks half-written.
+
+Time: ``minutes`` bounds the whole stage's wall time from the call (loading, training, held-out
+renders, writing; the interpreter's start and imports before it are not counted). Training runs
+against a deadline (:class:`recon.nerf.train.Deadline`): it stops when the time left covers only
+the held-out renders, planned from the render cost per ray measured on the model (untrained
+first, an upper bound, then at every held-out curve evaluation) but at most ``RENDER_SHARE`` of
+the budget, plus writing (``WRITE_S_PER_MPIX``, the checkpoint at ``CHECKPOINT_BYTES_PER_S``).
+After training the held-out views are evaluated at the working scale when their measured cost
+fits the time left, else at the finest coarser scale that fits (working size / k, the reference
+area-averaged by k; ``eval_factor`` in metrics, renders still written at the capture's size).
+``metrics.json`` records the plan and what happened under ``time``: ``budget_s``; ``planned``
+(load_s, train_s at the first step and at the end, render_s, write_s, eval_factor) and
+``actual`` (load_s, train_wall_s, render_s, write_s, stage_s, stopped_by). A budget that leaves
+no time for one training step is BadInput. ``clock="cpu"`` (measuring on shared cores) keeps
+the old meaning: ``minutes`` of training time, no deadline.
 """
 from __future__ import annotations
 
 import csv
 import io
+import math
 import shutil
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from recon.nerf.data import NerfInputError, load_data
-from recon.nerf.models import MODELS
-from recon.nerf.train import TrainConfig, evaluate_view, train
+from recon.nerf.data import NerfInputError, View, area_downsample, load_data
+from recon.nerf.models import MODELS, make_model
+from recon.nerf.train import BudgetTooSmall, Deadline, TrainConfig, evaluate_view, train
+from render.camera import Camera
 from render.image_io import atomic_path, write_exr, write_preview
 
-from ..artifacts import BadInput, Manifest, atomic_stage, read_manifest, write_json
+from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import progress_bar
+from .capture import check_capture_folder
+from .poses import check_poses
 
-__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS"]
+__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "eval_factors", "eval_factor",
+           "RENDER_SHARE"]
 
 CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
+#: the share of the budget held-out renders are planned to take before their cost is known: the
+#: untrained model's cost (every sample evaluated) bounds the trained one from above and would
+#: leave short runs no training; what does not fit at the end is evaluated at a coarser scale
+RENDER_SHARE = 0.25
+#: writing one held-out view (linear EXR, PNG preview, depth EXR) per megapixel of the capture,
+#: seconds (0.6 s measured for 1280x960 on 2 busy cores)
+WRITE_S_PER_MPIX = 1.0
+#: checkpoint writing and copying speed assumed by the plan (a local disk, conservatively)
+CHECKPOINT_BYTES_PER_S = 100e6
 
 
 def write_curve_csv(path: Path, curve: list[dict]) -> None:
@@ -75,34 +105,66 @@ def _resume_file(out: Path) -> Path:
     return out.parent / f".{out.name}.resume.pt"
 
 
+def eval_factors(width: int, height: int) -> list[int]:
+    """Factors k (ascending, 1 first) by which held-out views of ``width`` x ``height`` working
+    pixels can be evaluated coarser: k divides both sides, so the reference area-averages exactly."""
+    return [k for k in range(1, min(width, height) + 1) if width % k == 0 and height % k == 0]
+
+
+def eval_factor(s_per_ray: float, rays_at_1: int, available_s: float, factors: list[int]) -> int:
+    """The smallest factor k of ``factors`` whose render cost s_per_ray * rays_at_1 / k^2 fits in
+    ``available_s`` seconds; the largest factor when none fits."""
+    for k in factors:
+        if s_per_ray * rays_at_1 / (k * k) <= available_s:
+            return k
+    return factors[-1]
+
+
+def _at_scale(view: View, k: int) -> View:
+    """``view`` evaluated k times coarser: camera scaled by 1/k, reference area-averaged by k."""
+    if k == 1:
+        return view
+    cam = Camera(view.camera.intrinsics.scaled(1.0 / k), view.camera.cam_to_world, view.name)
+    return View(view.name, cam, area_downsample(view.rgb, k), view.full_camera, view.full_rgb)
+
+
 def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: float, out: Path,
              reference_dir: Path | None = None, downsample: int | None = None, seed: int = 0,
              max_steps: int | None = None,
              resume: bool = False, quiet: bool = False, clock: str = "wall", overrides: dict | None = None,
-             cluster: ClusterConfig | LocalEngine | DaskEngine | None = None) -> dict:
-    """Train ``model`` for ``minutes`` of training time on ``capture_dir`` (poses from
-    ``poses_dir``/cameras.json when given) and write ``out`` atomically; returns the manifest.
-    clock: "wall" budget, or "cpu" (process CPU time / threads, for measuring on shared cores);
+             cluster: ClusterConfig | LocalEngine | DaskEngine | None = None, overwrite: bool = False) -> dict:
+    """Train ``model`` on ``capture_dir`` (poses from ``poses_dir``/cameras.json when given) and
+    write ``out`` atomically, all within ``minutes`` of wall time; returns the manifest.
+    clock: "wall" (the budget bounds the whole stage, module docstring), or "cpu" (training time
+    counted as process CPU time / threads, for measuring on shared cores; no wall deadline);
     overrides: fields of the model's config to replace (tests use small grids).
     cluster: where the held-out renders run, one view per unit (pipeline.distributed): None
     (default) in this process; training always runs here.
 
-    Bad input (missing capture, images or cameras, unknown model) raises BadInput.
+    Bad input (missing or damaged capture, ``--poses`` of another capture, unknown model, a
+    budget too small to train at all, ``out`` holding something else than a finished NeRF folder
+    without ``overwrite``) raises BadInput before anything is written.
     """
+    t_start = time.perf_counter()
     capture_dir = Path(capture_dir)
     out = Path(out)
-    read_manifest(capture_dir)  # a finished capture stage, else BadInput
     if model not in MODELS:
         raise BadInput(f"--model: unknown NeRF model {model!r}; known: {', '.join(sorted(MODELS))}")
-    if not (minutes > 0):
-        raise BadInput(f"--minutes must be positive, got {minutes}")
-    for what, folder in (("--poses", poses_dir), ("--reference", reference_dir)):
-        if folder is not None and not Path(folder).is_dir():
-            raise BadInput(f"{what} {folder}: no such folder")
+    if not (minutes > 0 and math.isfinite(minutes)):
+        raise BadInput(f"--minutes must be a positive number, got {minutes}")
+    check_out(out, "nerf", overwrite)
+    if not capture_dir.is_dir():
+        raise BadInput(f"{capture_dir}: no such folder")
+    cams, splits = check_capture_folder(capture_dir, need=("linear",))
+    if poses_dir is not None:
+        check_poses(poses_dir, capture_dir, cams, splits)
+    if reference_dir is not None and not Path(reference_dir).is_dir():
+        raise BadInput(f"--reference {reference_dir}: no such folder")
     try:
         data = load_data(capture_dir, poses_dir, reference_dir, downsample)
     except NerfInputError as exc:
-        raise BadInput(str(exc)) from None
+        raise BadInput(str(exc).splitlines()[0]) from None
+    load_s = time.perf_counter() - t_start
     overrides = dict(overrides or {})
     downsample = data.downsample
     cfg = TrainConfig(model=model, minutes=minutes, max_steps=max_steps, seed=seed, clock=clock,
@@ -115,11 +177,30 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
         ckpt.unlink()
     small = data.test[0].camera.intrinsics
     full = data.test[0].full_camera.intrinsics
+    full_res = bool(model_cfg.render_full_res)
+    budget_s = minutes * 60.0
+    deadline_end = t_start + budget_s
+    factors = eval_factors(small.width, small.height)
+    rays_at_1 = len(data.test) * small.width * small.height
+    rays_full = len(data.test) * full.width * full.height if full_res else 0
+    write_s = WRITE_S_PER_MPIX * len(data.test) * full.width * full.height / 1e6
+
+    def checkpoint_s(m) -> float:  # model + Adam's two moments, saved then copied into the stage
+        return 2.0 * 3.0 * sum(p.numel() * p.element_size() for p in m.parameters()) / CHECKPOINT_BYTES_PER_S
+
+    ckpt_s_est = 0.0
+
+    def after_training_s(s_per_ray: float) -> float:
+        """Held-out renders (planned at most RENDER_SHARE of the budget: a coarser evaluation
+        scale takes what does not fit), writing the views and the checkpoint."""
+        render = min(s_per_ray * (rays_at_1 + rays_full), RENDER_SHARE * budget_s)
+        return render + write_s + ckpt_s_est
+
     manifest = Manifest("nerf", params={
         "model": model, "minutes": minutes, "clock": clock, "max_steps": max_steps, "seed": seed,
         "downsample": downsample,
         "working_size": [small.width, small.height], "render_size": [full.width, full.height],
-        "render_full_res": bool(model_cfg.render_full_res), "poses": data.poses, "reference": data.reference,
+        "render_full_res": full_res, "poses": data.poses, "reference": data.reference,
         "background": "black (the scene's); masks unused", "box_lo": data.lo.tolist(), "box_hi": data.hi.tolist(),
         "overrides": {k: str(v) for k, v in overrides.items()}})
     manifest.add_input(capture_dir / "cameras.json")
@@ -129,7 +210,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
     if reference_dir is not None:
         manifest.add_input(Path(reference_dir) / "linear")
 
-    with progress_bar(quiet) as bar:
+    with progress_bar(quiet) as bar, engine(cluster, quiet) as eng:
         task = bar.add_task(f"nerf {model}", total=100, info="")
 
         def on_step(p: dict) -> None:
@@ -137,38 +218,87 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
             bar.update(task, completed=round(100 * p["fraction"], 1),
                        info=f"step {p['step']} loss {p['loss']:.2e} psnr {p['psnr']:.2f} held-out {held} dB")
 
-        result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step)
-        bar.update(task, completed=100, info=f"rendering {len(data.test)} held-out views")
-        done: list = [None] * len(data.test)
-        with engine(cluster, quiet) as eng:
-            model_h = eng.share(result.model)
-            map_units(eng, nerf_view, [(v, bool(model_cfg.render_full_res), cfg.threads) for v in data.test],
-                      shared=[model_h], on_result=done.__setitem__, name="nerf-view")
-            del model_h
+        t_train = time.perf_counter()
+        if clock == "wall":  # the grids grow from res_init to res_final (fast model): the saved state with them
+            growth = (getattr(model_cfg, "res_final", 1) / getattr(model_cfg, "res_init", 1)) ** 2
+            ckpt_s_est = growth * checkpoint_s(make_model(model, data.lo, data.hi, seed, model_cfg))
+        deadline = Deadline(deadline_end, after_training_s) if clock == "wall" else None
+        try:
+            result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)
+        except BudgetTooSmall as exc:
+            raise BadInput(f"--minutes {minutes:g} ({budget_s:.1f} s) is too short for this capture: {exc} "
+                           f"(loading took {load_s:.1f} s); give more minutes or a larger --downsample") from None
+        train_end = time.perf_counter()
+        plan = dict(result.plan)
+        s_per_ray = plan.get("render_s_per_ray", 0.0)
+        if deadline is not None:
+            available = deadline_end - train_end - write_s - checkpoint_s(result.model)
+            k = eval_factor(s_per_ray, rays_at_1, available, factors)
+            if full_res and s_per_ray * (rays_at_1 / (k * k) + rays_full) > available:
+                full_res = False  # the full-resolution render does not fit: repeat working-scale pixels
+        else:
+            k = 1
+        views = [_at_scale(v, k) for v in data.test]
+        bar.update(task, completed=100, info=f"rendering {len(views)} held-out views")
+        done: list = [None] * len(views)
+        t_render = time.perf_counter()
+        model_h = eng.share(result.model)
+        map_units(eng, nerf_view, [(v, full_res, cfg.threads) for v in views],
+                  shared=[model_h], on_result=done.__setitem__, name="nerf-view")
+        del model_h
+        render_s = time.perf_counter() - t_render
         rows = [row for row, _ in done]
-        renders = {v.name: r for v, (_, r) in zip(data.test, done)}
+        renders = {v.name: r for v, (_, r) in zip(views, done)}
 
-    with atomic_stage(out) as tmp:
+    t_write = time.perf_counter()
+    eval_w, eval_h = views[0].camera.intrinsics.width, views[0].camera.intrinsics.height
+    with atomic_stage(out, "nerf", overwrite) as tmp:
         shutil.copyfile(ckpt, tmp / "checkpoint.pt")
         for name, r in renders.items():
             write_exr(tmp / "renders" / f"{name}.exr", r["rgb"])
             write_preview(tmp / "renders" / f"{name}.png", r["rgb"])
             write_exr(tmp / "depth" / f"{name}.exr", r["depth"])
-        write_curve_csv(tmp / "curve.csv", result.curve)
+        psnr_mean = float(np.mean([r["psnr"] for r in rows]))
+        curve = list(result.curve)
+        if deadline is not None and (not curve or curve[-1]["step"] != result.steps):
+            # the last point is the held-out evaluation itself (whole views at the evaluation scale)
+            curve.append({"step": result.steps, "train_s": round(result.train_s, 3),
+                          "wall_s": round(time.perf_counter() - t_train, 3), "psnr": round(psnr_mean, 4)})
+        write_curve_csv(tmp / "curve.csv", curve)
         metrics = {
-            "model": model, "scale": f"{small.width}x{small.height} (capture {full.width}x{full.height} / {downsample}, "
+            "model": model, "scale": f"{eval_w}x{eval_h} (capture {full.width}x{full.height} / {downsample * k}, "
                                      "area-averaged)",
             "reference": data.reference, "poses": data.poses,
-            "psnr_mean": float(np.mean([r["psnr"] for r in rows])), "ssim_mean": float(np.mean([r["ssim"] for r in rows])),
+            "psnr_mean": psnr_mean, "ssim_mean": float(np.mean([r["ssim"] for r in rows])),
             "views": rows, "steps": result.steps, "train_s": round(result.train_s, 3),
-            "curve_final_psnr": result.curve[-1]["psnr"] if result.curve else None,
+            "curve_final_psnr": curve[-1]["psnr"] if curve else None,
         }
-        if model_cfg.render_full_res:
+        if full_res:
             metrics["psnr_full_mean"] = float(np.mean([r["psnr_full"] for r in rows]))
             metrics["ssim_full_mean"] = float(np.mean([r["ssim_full"] for r in rows]))
+        if deadline is not None:
+            metrics["time"] = {
+                "budget_s": round(budget_s, 3),
+                "planned": {"load_s": round(load_s, 3),
+                            "train_s_first": plan["planned_train_s_first"],
+                            "train_s": plan["planned_train_s_last"],
+                            "render_s": round(s_per_ray * (rays_at_1 / (k * k) + (rays_full if full_res else 0)), 3),
+                            "render_s_per_ray": s_per_ray,
+                            "render_s_per_ray_untrained": plan["render_s_per_ray_untrained"],
+                            "write_s": round(write_s + checkpoint_s(result.model), 3),
+                            "eval_factor": k, "eval_size": [eval_w, eval_h],
+                            "render_full_res": full_res},
+                "actual": {"load_s": round(load_s, 3), "train_wall_s": plan["train_wall_s"],
+                           "train_total_s": round(train_end - t_train, 3), "render_s": round(render_s, 3),
+                           "stopped_by": plan["stopped_by"]},
+            }
+            metrics["time"]["actual"]["write_s"] = round(time.perf_counter() - t_write, 3)  # all but this file
+            metrics["time"]["actual"]["stage_s"] = round(time.perf_counter() - t_start, 3)
         write_json(tmp / "metrics.json", metrics)
-        manifest.metrics = {k: metrics[k] for k in ("psnr_mean", "ssim_mean", "steps", "train_s")}
+        manifest.metrics = {k_: metrics[k_] for k_ in ("psnr_mean", "ssim_mean", "steps", "train_s")}
+        if deadline is not None:
+            manifest.metrics.update(budget_s=round(budget_s, 3), eval_factor=k,
+                                    stage_s=metrics["time"]["actual"]["stage_s"])
         m = manifest.write(tmp)
     ckpt.unlink(missing_ok=True)
     return m
-

@@ -10,6 +10,16 @@ is deterministic when ``max_steps`` bounds the run before the time budget does.
 Checkpoints (``torch.save``): model state, optimizer state, step, training time, curve, sampler
 state. ``train(..., checkpoint=path)`` writes one every ``checkpoint_every_s`` seconds of training
 and ``resume=True`` continues from it up to the same budget.
+
+A :class:`Deadline` bounds the wall time of training *and of what follows it*: the caller says
+when everything must be done (a ``time.perf_counter()`` value) and how long it needs after
+training given the measured render cost per ray (held-out renders, writing). Training then plans
+its length from the wall clock: the render cost is measured on the untrained model before the
+first step (every sample of every ray is evaluated then, so it bounds the trained cost from
+above) and again at every held-out curve evaluation; a step is started only when it, the curve
+evaluations still due and the caller's share fit before the end. The schedule's progress
+(learning rates, grid upsampling) follows the planned length, never decreasing; the final
+held-out curve point is left to the caller (it renders those views anyway).
 """
 from __future__ import annotations
 
@@ -30,7 +40,8 @@ from render.metrics import mse_to_psnr, psnr, ssim  # one PSNR convention (cappe
 from .data import NerfData, camera_rays, stack_rays
 from .models import MODELS, make_model
 
-__all__ = ["TrainConfig", "TrainResult", "train", "render_view", "evaluate_view", "evaluate_views", "mse_to_psnr"]
+__all__ = ["TrainConfig", "TrainResult", "Deadline", "BudgetTooSmall", "train", "render_view", "evaluate_view", "evaluate_views",
+           "mse_to_psnr", "render_cost_per_ray"]
 
 
 @dataclass(frozen=True)
@@ -67,12 +78,36 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     """model (trained, eval mode); steps; train_s: training seconds; curve: rows of
-    {step, train_s, wall_s, psnr} (held-out PSNR in dB at the working scale)."""
+    {step, train_s, wall_s, psnr} (held-out PSNR in dB at the working scale); plan: with a
+    :class:`Deadline`, the wall-time plan (seconds): ``planned_train_s`` at the first step and at
+    the end, ``train_wall_s`` spent, ``render_s_per_ray`` measured last, ``stopped_by``."""
 
     model: nn.Module
     steps: int
     train_s: float
     curve: list[dict] = field(default_factory=list)
+    plan: dict = field(default_factory=dict)
+
+
+class BudgetTooSmall(ValueError):
+    """A :class:`Deadline` leaves no time for even one training step."""
+
+
+@dataclass(frozen=True)
+class Deadline:
+    """end: ``time.perf_counter()`` value by which training and everything after it must be done;
+    after_s(s_per_ray): seconds the caller needs after training (held-out renders, writing),
+    given the latest measured render cost in seconds per ray (:func:`render_view`)."""
+
+    end: float
+    after_s: Callable[[float], float]
+
+
+def render_cost_per_ray(model: nn.Module, camera: Camera, pixels: torch.Tensor) -> float:
+    """Wall seconds per ray of :func:`render_view` of ``pixels`` ((P,) flat indices) of ``camera``."""
+    t0 = time.perf_counter()
+    render_view(model, camera, pixels=pixels)
+    return (time.perf_counter() - t0) / max(int(pixels.shape[0]), 1)
 
 
 @torch.no_grad()
@@ -136,13 +171,16 @@ def _save(path: Path, model, opt, step, train_s, curve, gen, cfg: TrainConfig) -
 
 
 def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resume: bool = False,
-          progress: Callable[[dict], None] | None = None, stop_step: int | None = None) -> TrainResult:
+          progress: Callable[[dict], None] | None = None, stop_step: int | None = None,
+          deadline: Deadline | None = None) -> TrainResult:
     """Train ``cfg.model`` on ``data.train`` for ``cfg.minutes`` of training time.
 
     checkpoint: where to write checkpoints (None: never); resume: continue from ``checkpoint``
     if it exists; progress: called after every step with {fraction, step, loss, psnr,
     test_psnr (latest held-out PSNR or None), rays, points}; stop_step: leave after this many
-    steps as an interruption would (checkpoint written, schedule unchanged, nothing finalised).
+    steps as an interruption would (checkpoint written, schedule unchanged, nothing finalised);
+    deadline: also stop so that training and the caller's ``after_s`` fit before ``deadline.end``
+    (module docstring); the final held-out curve point is then not computed.
     """
     torch.set_num_threads(cfg.threads)
 
@@ -166,39 +204,86 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         step, train_s, curve = state["step"], state["train_s"], list(state["curve"])
         gen.set_state(state["generator"])
 
+    pixels = _curve_pixels(data, getattr(model_cfg, "curve_pixels", None), cfg.seed)
+    curve_rays = sum(v.camera.intrinsics.width * v.camera.intrinsics.height if px is None else int(px.shape[0])
+                     for v, px in zip(data.test, pixels))
+    plan: dict = {}
+    s_per_ray = 0.0
+    if deadline is not None:  # the untrained model evaluates every sample: an upper bound of the trained cost
+        g = torch.Generator().manual_seed(cfg.seed + 2)
+        k0 = data.test[0].camera.intrinsics
+        probe = torch.randperm(k0.width * k0.height, generator=g)[:min(136, k0.width * k0.height)]
+        render_view(model, data.test[0].camera, pixels=probe[:8])  # first-call overheads are not a ray's cost
+        s_per_ray = render_cost_per_ray(model, data.test[0].camera, probe[8:] if probe.shape[0] > 8 else probe)
+        model.train()
+    train_wall = 0.0       # wall seconds spent in steps (with a deadline)
+    # a step's wall time, decaying maximum of the recent ones; before the first: its forward pass at
+    # the probe's cost per ray, backward about twice that
+    step_wall = 3.0 * s_per_ray * model.batch_rays()
+    hook_wall = 0.0        # the longest schedule hook (grid upsampling, occupancy update) seen
+    progress_floor = 0.0   # the schedule never goes back
+
+    def remaining_train_s() -> float:
+        """Wall seconds of training that still fit before the deadline (deadline mode only)."""
+        eval_s = s_per_ray * curve_rays
+        left = deadline.end - time.perf_counter() - deadline.after_s(s_per_ray) - step_wall - hook_wall
+        return max(0.0, left) / (1.0 + eval_s / cfg.eval_every_s)  # curve evaluations due meanwhile
+
     def frac() -> float:
-        f = train_s / budget
+        f = max(progress_floor, train_s / budget)
         if cfg.max_steps is not None:
             f = max(f, step / cfg.max_steps)
+        if deadline is not None:
+            rest = remaining_train_s()
+            f = max(f, 1.0 if rest <= 0.0 else train_wall / (train_wall + rest))
         return f
 
     model.on_progress(frac(), step)
-    opt = _make_optimizer(model, frac())
+    opt = _make_optimizer(model, frac())  # the first one imports parts of torch: seconds, before the plan
     if state is not None:
         opt.load_state_dict(state["optimizer"])
-    pixels = _curve_pixels(data, getattr(model_cfg, "curve_pixels", None), cfg.seed)
+    if deadline is not None:
+        plan["planned_train_s_first"] = round(remaining_train_s(), 3)
+        plan["render_s_per_ray_untrained"] = s_per_ray
+    first_step = step
     wall0 = time.perf_counter() - (curve[-1]["wall_s"] if curve else 0.0)
     next_eval = (curve[-1]["train_s"] if curve else 0.0) + cfg.eval_every_s  # no point at step 0
     next_ckpt = train_s + cfg.checkpoint_every_s
     test_psnr = curve[-1]["psnr"] if curve else None
+    stopped_by = "budget"
     model.train()
     while True:
         if train_s >= next_eval:
+            t_eval = time.perf_counter()
             test_psnr = _held_out_psnr(model, data, pixels)
+            if curve_rays:
+                s_per_ray = (time.perf_counter() - t_eval) / curve_rays  # the model's render cost as it is now
             curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
                           "psnr": round(test_psnr, 4)})
             next_eval = train_s + cfg.eval_every_s
-        if frac() >= 1.0:
+        progress_now = frac()
+        if progress_now >= 1.0:
+            if deadline is not None and step == first_step and not (cfg.max_steps is not None and step >= cfg.max_steps):
+                raise BudgetTooSmall(f"no time left to train: a step needs about {step_wall:.1f} s and what follows "
+                                     f"training about {deadline.after_s(s_per_ray):.1f} s, but only "
+                                     f"{deadline.end - time.perf_counter():.1f} s remain")
+            if cfg.max_steps is not None and step >= cfg.max_steps:
+                stopped_by = "max_steps"
+            elif deadline is not None and train_s < budget:
+                stopped_by = "deadline"
             break
+        progress_floor = progress_now
         if stop_step is not None and step >= stop_step:
             if checkpoint is not None:
                 _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
-            return TrainResult(model, step, train_s, curve)
+            return TrainResult(model, step, train_s, curve, plan)
         t0 = now()
-        if model.on_progress(frac(), step):
-            opt = _make_optimizer(model, frac())
+        w0 = time.perf_counter()
+        if model.on_progress(progress_now, step):
+            opt = _make_optimizer(model, progress_now)
+        hook_wall = max(hook_wall, time.perf_counter() - w0)
         for group in opt.param_groups:
-            group["lr"] = model.learning_rates(frac())[group["name"]]
+            group["lr"] = model.learning_rates(progress_now)[group["name"]]
         idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
         target = c_all[idx]
         out = model.render(o_all[idx], d_all[idx], training=True, generator=gen)
@@ -212,22 +297,30 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             opt.step()
         step += 1
         train_s += now() - t0
+        this_step = time.perf_counter() - w0
+        train_wall += this_step
+        step_wall = max(this_step, 0.8 * step_wall)
         if progress is not None:
             progress({"fraction": min(frac(), 1.0), "step": step, "loss": loss.item(), "psnr": mse_to_psnr(mse.item()),
                       "test_psnr": test_psnr, "rays": int(idx.shape[0]), "points": out.n_points})
         if checkpoint is not None and train_s >= next_ckpt:
             _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
             next_ckpt = train_s + cfg.checkpoint_every_s
+    t_final = time.perf_counter()
     if hasattr(model, "update_occupancy") and step >= getattr(model_cfg, "occ_start", 0):
         model.update_occupancy()  # the final state, so rendering skips all empty space
-    if not curve or curve[-1]["step"] != step:
+    if deadline is None and (not curve or curve[-1]["step"] != step):
         test_psnr = _held_out_psnr(model, data, pixels)
         curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
                       "psnr": round(test_psnr, 4)})
     if checkpoint is not None:
         _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
     model.eval()
-    return TrainResult(model, step, train_s, curve)
+    if deadline is not None:
+        plan.update(planned_train_s_last=round(train_wall + remaining_train_s(), 3), train_wall_s=round(train_wall, 3),
+                    render_s_per_ray=s_per_ray, finish_s=round(time.perf_counter() - t_final, 3), stopped_by=stopped_by,
+                    curve_rays=curve_rays)
+    return TrainResult(model, step, train_s, curve, plan)
 
 
 def evaluate_view(model: nn.Module, v, full_res: bool) -> tuple[dict, dict]:
