@@ -1,5 +1,7 @@
 """The slab stage end to end on the tiny scene (tests/pipeline/conftest.py: few small views): the folder
-layout of DESIGN.md, finite metrics for every mode, and bad input as BadInput (exit 2)."""
+layout of DESIGN.md, held-out renders that see the subject (PSNR well above an all-black image's),
+finite metrics for every mode, and bad input as BadInput (exit 2)."""
+import copy
 import json
 import shutil
 
@@ -10,12 +12,24 @@ from pipeline.artifacts import BadInput, read_manifest
 from pipeline.stages.slab import SlabStageConfig, run_slab
 from recon.slab import LayoutConfig
 from render.image_io import read_exr
+from render.metrics import psnr
 from render.slab import MODES
 from render.slab_io import load_slabs
 
 from .conftest import TINY_SCENE, write_scene
 
 SMALL = LayoutConfig(count=4, uv_res=4, st_res=24)
+# The layout test's slabs: st 48 (24 leaves the held-out PSNR only 1.9-2.7 dB above black).
+LAYOUT = LayoutConfig(count=4, uv_res=4, st_res=48)
+# The held-out views must lie where the slabs see the subject: TINY_SCENE's held-out ring (45 deg)
+# lies above its only train ring (35 deg), outside every uv plane, so a slab rendered nothing there
+# and the test passed on the all-black PSNR. Train rings at 30 and 60 deg put it in between.
+SLAB_SCENE = copy.deepcopy(TINY_SCENE)
+SLAB_SCENE["cameras"]["train"] = [{"ring": {"elevation_deg": 30, "count": 3, "distance": 0.8}},
+                                  {"ring": {"elevation_deg": 60, "count": 3, "distance": 0.8, "azimuth_offset_deg": 60}}]
+# Every held-out view's PSNR must beat the all-black image's by this much (the MSE at most half of
+# black's). Measured (st 48, depth mode): direct +3.8 / +3.8 dB, rebin +3.6 / +3.4 dB.
+BLACK_MARGIN_DB = 3.0
 
 
 @pytest.fixture(scope="module")
@@ -24,15 +38,19 @@ def capture(tmp_path_factory):
     from rig.build import load_scene
 
     root = tmp_path_factory.mktemp("slabstage")
-    path = write_scene(root / "scenes", TINY_SCENE)
+    path = write_scene(root / "scenes", SLAB_SCENE)
     run_capture(load_scene(path), path, root / "tiny" / "capture", quiet=True)
     return root / "tiny" / "capture"
 
 
 @pytest.mark.parametrize("method", ["direct", "rebin"])
 def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
+    """The folder layout, and held-out renders that see the subject: each view's PSNR (the
+    stage's metric, against the capture) at least BLACK_MARGIN_DB above an all-black image's,
+    computed here. Fails when the views leave the slabs (with TINY_SCENE's train ring the render
+    is black: margin 0.00 dB, as the former version of this test passed)."""
     out = tmp_path / "slab"
-    m = run_slab(capture, None, out, SlabStageConfig(method=method, layout=SMALL), quiet=True)
+    m = run_slab(capture, None, out, SlabStageConfig(method=method, layout=LAYOUT), quiet=True)
     assert read_manifest(out)["stage"] == "slab" and m["metrics"]["mode"] == "depth"
     tests = sorted(p.stem for p in (capture / "linear").glob("test_*.exr"))
     assert tests and sorted(p.stem for p in (out / "renders").glob("*.exr")) == tests
@@ -43,6 +61,10 @@ def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
         assert all((out / "modes" / mode / f"{v}.png").is_file() for mode in MODES)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["reference"] == "capture" and set(metrics["modes"]) == set(MODES)
+    for v in tests:
+        ref = read_exr(capture / "linear" / f"{v}.exr")
+        black = psnr(np.zeros_like(ref), ref)
+        assert metrics["per_view"][v]["psnr"] > black + BLACK_MARGIN_DB, (v, metrics["per_view"][v]["psnr"], black)
     for mode in MODES:
         for v in tests:
             assert np.isfinite(metrics["modes"][mode]["per_view"][v]["psnr"])
