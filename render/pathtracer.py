@@ -126,7 +126,9 @@ class RenderSettings:
     integrator: "auto" (chosen from the scene's effects), "direct", "path", "volpath", "bdpt"
     (render.bdpt), "pssmlt" (render.pssmlt) or "sppm" (render.sppm). spp: samples per pixel when
     no sample range is given (sppm: passes; pssmlt: mutations per pixel on average).
-    max_depth: maximum bounces. photons_per_pass: photons emitted per sppm pass (sppm only).
+    max_depth: maximum bounces. photons_per_pass: photons emitted per sppm pass (sppm only;
+    None: the view's pixel count, pbrt-v3's default for its SPPM, so the photon work follows the
+    image like the eye pass does).
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth.
     seed: the render's seed. strategy: "mis" (light + BSDF sampling, MIS-weighted), "light"
     (next-event estimation only) or "bsdf" (BSDF sampling only for area sources; delta lights
@@ -145,7 +147,7 @@ class RenderSettings:
     heuristic: str = "power"
     threads: int = 2
     batch_paths: int = 1 << 16
-    photons_per_pass: int = 200_000
+    photons_per_pass: int | None = None
 
     def __post_init__(self):
         if self.integrator not in ("auto", *INTEGRATOR_EFFECTS):
@@ -157,7 +159,7 @@ class RenderSettings:
             raise ValueError(f"heuristic must be power or balance, got {self.heuristic!r}")
         if self.spp < 1 or self.max_depth < 0 or self.rr_depth < 0 or self.threads < 1 or self.batch_paths < 1:
             raise ValueError("spp, threads and batch_paths must be >= 1; max_depth, rr_depth >= 0")
-        if self.photons_per_pass < 1:
+        if self.photons_per_pass is not None and self.photons_per_pass < 1:
             raise ValueError(f"photons_per_pass must be >= 1, got {self.photons_per_pass}")
 
 

@@ -457,7 +457,8 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
 def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None):
     """SPPM as a :class:`render.film.RenderResult` (what render.pathtracer.render returns): the
     independent groups of passes (module docstring) that ``sample_range`` covers, of a render of
-    ``settings.spp`` passes; photons per pass from ``settings.photons_per_pass``.
+    ``settings.spp`` passes; photons per pass ``settings.photons_per_pass`` (None: the view's
+    pixel count, as pbrt-v3's SPPM).
 
     sample_range (default (0, settings.spp)) must start and end on group boundaries
     (:func:`render.film.whole_groups`; ValueError naming sppm otherwise, which also refuses
@@ -472,14 +473,15 @@ def render_result(scene, camera: Camera, settings, sample_range=None, effects=No
     caustics = True if effects is None else "caustics" in frozenset(effects)
     k = camera.intrinsics
     film = Film(k.width, k.height)
+    photons = int(settings.photons_per_pass or k.width * k.height)
     stats = {"time_s": 0.0, "paths": 0, "rays": 0, "groups": 0, "photons": 0}
     for g0, g1 in groups:
-        res = render_sppm(scene, camera, g1 - g0, settings.photons_per_pass, max_depth=settings.max_depth,
+        res = render_sppm(scene, camera, g1 - g0, photons, max_depth=settings.max_depth,
                           seed=settings.seed, prepared=prepared, caustics=caustics, first_pass=g0)
         image = res.mean.reshape(-1, 3)
         film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
         for key in ("time_s", "paths", "rays"):
             stats[key] += res.stats[key]
         stats["groups"] += 1
-        stats["photons"] += (g1 - g0) * int(settings.photons_per_pass)
+        stats["photons"] += (g1 - g0) * photons
     return RenderResult.from_film(film, (a, b), "sppm", stats)

@@ -55,10 +55,11 @@ MAX_SPP = 1 << 16
 #: memory one view costs per pixel while it renders, per worker (bytes): the fold's films
 #: (accumulated, incoming, merged: 3 x 56 B of float64 moments and int64 counts), the float32
 #: mean and variance and their EXR / PNG encodings (~100 B), and the integrators' own per-pixel
-#: arrays, measured as tracemalloc's peak slope from 256^2 to 512^2 on cornell (8 spp): sppm
-#: 308, pssmlt 181, bdpt 121, volpath 85 B/px (path and direct trace fixed-size batches). Their
-#: sum (~600 B) doubled for what tracemalloc does not see (Embree, numba)
-BYTES_PER_PIXEL = 1024
+#: arrays, measured as tracemalloc's peak per unit at 256^2 and 512^2 on cornell: sppm 861 (one
+#: photon per pixel per pass), pssmlt 181, bdpt 121, volpath 85 B/px (path and direct trace
+#: fixed-size batches). The largest sum (~1130 B) rounded up for what tracemalloc does not see
+#: (Embree, numba)
+BYTES_PER_PIXEL = 2048
 
 
 def resize_camera(cam: Camera, width: int, height: int) -> Camera:
