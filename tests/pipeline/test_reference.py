@@ -34,18 +34,29 @@ def test_reference_writes_mean_variance_and_cameras(tiny_dirs):
         assert (var > 0).any()
 
 
+# Pixels judged by the reference-vs-capture test: lit in either image (max over RGB, linear).
+# 92% of the tiny scene is black background, which agrees exactly and would pass any renderer.
+LIT = 0.01
+
+
 def test_reference_agrees_with_the_rasterized_capture(tiny_dirs):
-    """Same light units in both renderers: per-view mean radiance within 3% and most pixels
-    within noise. At 128x96 many pixels straddle an edge or the board's pattern, where MSAA's 4
-    subsamples and the path tracer's box filter differ, hence 90% and not more."""
+    """Same light units in both renderers, judged on lit pixels only (radiance > LIT in either
+    image: 7.9% and 8.2% of each view): their mean radiance within 1% (measured +0.29%, +0.18%),
+    and at least 93% of their channels within 4 sigma of the reference's noise (measured 96.9%
+    and 96.2%; at 128x96 many lit pixels straddle an edge or the board's pattern, where MSAA's 4
+    subsamples and the path tracer's box filter differ). Over all pixels the former test passed
+    with 99.7% (the background). The spot light 2% too bright in the path tracer's kernels fails it
+    (lit mean +2.3%); the former test, with 3% over all pixels, passed that."""
     _, root = tiny_dirs
     for cam in read_cameras_json(root / "reference" / "cameras.json")[0]:
         ref = read_exr(root / "reference" / "linear" / f"{cam.name}.exr").astype(np.float64)
         var = read_exr(root / "reference" / "variance" / f"{cam.name}.exr").astype(np.float64)
         cap = read_exr(root / "capture" / "linear" / f"{cam.name}.exr").astype(np.float64)
-        assert abs(ref.mean() / cap.mean() - 1) < 0.03
-        z = np.abs(ref - cap) / np.sqrt(var + 1e-6)
-        assert (z < 4).mean() > 0.90
+        lit = np.maximum(ref.max(axis=2), cap.max(axis=2)) > LIT
+        assert lit.mean() > 0.05, f"{cam.name}: only {lit.mean():.3f} of the pixels are lit"
+        assert abs(ref[lit].mean() / cap[lit].mean() - 1) < 0.01, (cam.name, ref[lit].mean() / cap[lit].mean())
+        z = np.abs(ref[lit] - cap[lit]) / np.sqrt(var[lit] + 1e-6)
+        assert (z < 4).mean() > 0.93, (cam.name, (z < 4).mean())
 
 
 def test_same_seed_same_bytes(tiny_dirs, tmp_path):
