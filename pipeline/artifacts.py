@@ -162,6 +162,7 @@ def atomic_stage(final: Path, stage: str | None = None, overwrite: bool = False)
     of the stage removes those whose process is gone."""
     final = Path(final)
     check_out(final, stage, overwrite)
+    created = [d for d in [final.parent, *final.parent.parents] if not d.exists()]  # deepest first
     final.parent.mkdir(parents=True, exist_ok=True)
     _remove_orphans(final)
     tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-{os.getpid()}-", dir=final.parent))
@@ -180,6 +181,12 @@ def atomic_stage(final: Path, stage: str | None = None, overwrite: bool = False)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        if not final.exists():  # failed: the folders made for it go too (when still empty)
+            for d in created:
+                try:
+                    d.rmdir()
+                except OSError:
+                    break
 
 
 @dataclass

@@ -37,7 +37,8 @@ area-averaged by k; ``eval_factor`` in metrics, renders still written at the cap
 ``metrics.json`` records the plan and what happened under ``time``: ``budget_s``; ``planned``
 (load_s, train_s at the first step and at the end, render_s, write_s, eval_factor) and
 ``actual`` (load_s, train_wall_s, render_s, write_s, stage_s, stopped_by). A budget that leaves
-no time for one training step is BadInput. ``clock="cpu"`` (measuring on shared cores) keeps
+no time for one training step trains none (``steps`` 0): the untrained model is still rendered,
+at the coarsest scale if need be. ``clock="cpu"`` (measuring on shared cores) keeps
 the old meaning: ``minutes`` of training time, no deadline.
 """
 from __future__ import annotations
@@ -54,13 +55,13 @@ import numpy as np
 
 from recon.nerf.data import NerfInputError, View, area_downsample, load_data
 from recon.nerf.models import MODELS, make_model
-from recon.nerf.train import BudgetTooSmall, Deadline, TrainConfig, evaluate_view, train
+from recon.nerf.train import Deadline, TrainConfig, evaluate_view, train
 from render.camera import Camera
 from render.image_io import atomic_path, write_exr, write_preview
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
-from ..progress import progress_bar
+from ..progress import console, progress_bar
 from .capture import check_capture_folder
 from .poses import check_poses
 
@@ -141,8 +142,8 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
     cluster: where the held-out renders run, one view per unit (pipeline.distributed): None
     (default) in this process; training always runs here.
 
-    Bad input (missing or damaged capture, ``--poses`` of another capture, unknown model, a
-    budget too small to train at all, ``out`` holding something else than a finished NeRF folder
+    Bad input (missing or damaged capture, ``--poses`` of another capture, unknown model,
+    ``out`` holding something else than a finished NeRF folder
     without ``overwrite``) raises BadInput before anything is written.
     """
     t_start = time.perf_counter()
@@ -223,14 +224,14 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
             growth = (getattr(model_cfg, "res_final", 1) / getattr(model_cfg, "res_init", 1)) ** 2
             ckpt_s_est = growth * checkpoint_s(make_model(model, data.lo, data.hi, seed, model_cfg))
         deadline = Deadline(deadline_end, after_training_s) if clock == "wall" else None
-        try:
-            result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)
-        except BudgetTooSmall as exc:
-            raise BadInput(f"--minutes {minutes:g} ({budget_s:.1f} s) is too short for this capture: {exc} "
-                           f"(loading took {load_s:.1f} s); give more minutes or a larger --downsample") from None
+        result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)
+        if result.steps == 0 and not quiet:
+            console.print(f"nerf: --minutes {minutes:g} left no time for a training step; the untrained model is "
+                          "rendered (steps 0 in metrics.json)")
         train_end = time.perf_counter()
         plan = dict(result.plan)
         s_per_ray = plan.get("render_s_per_ray", 0.0)
+        available = math.inf
         if deadline is not None:
             available = deadline_end - train_end - write_s - checkpoint_s(result.model)
             k = eval_factor(s_per_ray, rays_at_1, available, factors)
@@ -283,7 +284,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
                             "train_s_first": plan["planned_train_s_first"],
                             "train_s": plan["planned_train_s_last"],
                             "render_s": round(s_per_ray * (rays_at_1 / (k * k) + (rays_full if full_res else 0)), 3),
-                            "render_s_per_ray": s_per_ray,
+                            "render_s_per_ray": s_per_ray, "render_budget_s": round(available, 3),
                             "render_s_per_ray_untrained": plan["render_s_per_ray_untrained"],
                             "write_s": round(write_s + checkpoint_s(result.model), 3),
                             "eval_factor": k, "eval_size": [eval_w, eval_h],

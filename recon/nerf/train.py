@@ -17,7 +17,8 @@ training given the measured render cost per ray (held-out renders, writing). Tra
 its length from the wall clock: the render cost is measured on the untrained model before the
 first step (every sample of every ray is evaluated then, so it bounds the trained cost from
 above) and again at every held-out curve evaluation; a step is started only when it, the curve
-evaluations still due and the caller's share fit before the end. The schedule's progress
+evaluations still due and the caller's share fit before the end (so a budget too short for one
+step trains none: the caller still renders and writes the untrained model in time). The schedule's progress
 (learning rates, grid upsampling) follows the planned length, never decreasing; the final
 held-out curve point is left to the caller (it renders those views anyway).
 """
@@ -40,7 +41,7 @@ from render.metrics import mse_to_psnr, psnr, ssim  # one PSNR convention (cappe
 from .data import NerfData, camera_rays, stack_rays
 from .models import MODELS, make_model
 
-__all__ = ["TrainConfig", "TrainResult", "Deadline", "BudgetTooSmall", "train", "render_view", "evaluate_view", "evaluate_views",
+__all__ = ["TrainConfig", "TrainResult", "Deadline", "train", "render_view", "evaluate_view", "evaluate_views",
            "mse_to_psnr", "render_cost_per_ray"]
 
 
@@ -87,10 +88,6 @@ class TrainResult:
     train_s: float
     curve: list[dict] = field(default_factory=list)
     plan: dict = field(default_factory=dict)
-
-
-class BudgetTooSmall(ValueError):
-    """A :class:`Deadline` leaves no time for even one training step."""
 
 
 @dataclass(frozen=True)
@@ -245,7 +242,6 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     if deadline is not None:
         plan["planned_train_s_first"] = round(remaining_train_s(), 3)
         plan["render_s_per_ray_untrained"] = s_per_ray
-    first_step = step
     wall0 = time.perf_counter() - (curve[-1]["wall_s"] if curve else 0.0)
     next_eval = (curve[-1]["train_s"] if curve else 0.0) + cfg.eval_every_s  # no point at step 0
     next_ckpt = train_s + cfg.checkpoint_every_s
@@ -263,10 +259,6 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             next_eval = train_s + cfg.eval_every_s
         progress_now = frac()
         if progress_now >= 1.0:
-            if deadline is not None and step == first_step and not (cfg.max_steps is not None and step >= cfg.max_steps):
-                raise BudgetTooSmall(f"no time left to train: a step needs about {step_wall:.1f} s and what follows "
-                                     f"training about {deadline.after_s(s_per_ray):.1f} s, but only "
-                                     f"{deadline.end - time.perf_counter():.1f} s remain")
             if cfg.max_steps is not None and step >= cfg.max_steps:
                 stopped_by = "max_steps"
             elif deadline is not None and train_s < budget:
