@@ -182,10 +182,12 @@ def test_killed_stage_then_rerun_equals_an_uninterrupted_run(tmp_path):
                        "--out", str(out), "--quiet"]
     out = tmp_path / "arts" / "reference"
     proc = subprocess.Popen(cmd(out), start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # kill once the first view is written and before the second is: mid-render on any machine
+    # (a fixed delay after the partial folder appears killed nothing on a fast one)
     deadline = time.time() + 120
-    while not list(out.parent.glob(".reference.partial-*")) and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.01)
-    time.sleep(0.3)  # inside the render
+    while (not list(out.parent.glob(".reference.partial-*/linear/*.exr")) and time.time() < deadline
+           and proc.poll() is None):
+        time.sleep(0.005)
     os.killpg(proc.pid, signal.SIGKILL)
     assert proc.wait(30) == -signal.SIGKILL, "the render finished before it could be killed"
     assert not out.exists() and list(out.parent.glob(".reference.partial-*"))
