@@ -255,3 +255,40 @@ def test_inspect_every_stage_folder_run_wrote(tiny_run):
     for f, res in lumigraph_all({f: ("inspect", f, "--no-sheet") for f in folders}).items():
         assert_ok(res)
         assert f"stage '{json.loads((f / 'manifest.json').read_text())['stage']}'" in res.stdout, res.stdout
+
+
+def test_exact_match_metrics_are_written_as_finite_json(tiny_run, tmp_path):
+    """Hard case: a model that reproduces its reference exactly. The slab stage's scoring
+    (pipeline.stages.slab.evaluate_views, on the run's slab set, against its own render of a
+    captured view) and the NeRF stage's (recon.nerf.train.evaluate_view, an untrained model
+    against its own render) give PSNR_MAX_DB and SSIM 1, and their metrics write as strict JSON
+    (pipeline.artifacts.write_json, allow_nan=False), where +inf used to crash both stages."""
+    from pipeline.artifacts import write_json
+    from pipeline.stages.capture import read_cameras
+    from pipeline.stages.slab import evaluate_views
+    from recon.nerf.data import View
+    from recon.nerf.models import make_model
+    from recon.nerf.train import evaluate_view, render_view as nerf_render
+    from render.camera import Camera, Intrinsics
+    from render.slab import render_view as slab_render
+    from render.slab_io import load_slabs
+
+    r, art = tiny_run
+    assert_ok(r)
+    slabs = load_slabs(art / "slab" / "slabs")
+    cams, splits = read_cameras(art / "capture" / "cameras.json")
+    cam = [c for c, s in zip(cams, splits) if s == "train"][0]  # the tiny scene's test views miss the slabs
+    own = slab_render(slabs, cam, "depth", (0.0, 0.0, 0.0))
+    assert own.max() > 0
+    metrics, _ = evaluate_views(slabs, [cam], [own], modes=("depth",))
+    assert metrics["depth"]["psnr_mean"] == PSNR_MAX_DB and metrics["depth"]["ssim_mean"] == 1.0
+    write_json(tmp_path / "slab_metrics.json", metrics)
+
+    model = make_model("fast", -np.ones(3), np.ones(3)).eval()
+    small = Camera(Intrinsics.from_fov(8, 6, 50.0), cam.cam_to_world, "exact")
+    view = View("exact", small, nerf_render(model, small)["rgb"], small)
+    row, _ = evaluate_view(model, view, False)
+    assert row["psnr"] == PSNR_MAX_DB and row["ssim"] == 1.0
+    write_json(tmp_path / "nerf_metrics.json", {"psnr_mean": float(np.mean([row["psnr"]])), "views": [row]})
+    for name in ("slab_metrics.json", "nerf_metrics.json"):
+        json.loads((tmp_path / name).read_text())
