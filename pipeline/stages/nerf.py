@@ -66,7 +66,7 @@ from .capture import check_capture_folder
 from .poses import check_poses
 
 __all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "eval_factors", "eval_factor",
-           "RENDER_SHARE"]
+           "RENDER_SHARE", "WRITE_S_PER_MPIX"]
 
 CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
 #: the share of the budget held-out renders are planned to take before their cost is known: the
@@ -282,6 +282,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
                 "budget_s": round(budget_s, 3),
                 "planned": {"load_s": round(load_s, 3),
                             "train_s_first": plan["planned_train_s_first"],
+                            "after_training_s_first": plan["after_training_s_first"],
                             "train_s": plan["planned_train_s_last"],
                             "render_s": round(s_per_ray * (rays_at_1 / (k * k) + (rays_full if full_res else 0)), 3),
                             "render_s_per_ray": s_per_ray, "render_budget_s": round(available, 3),

@@ -81,7 +81,7 @@ class TrainResult:
     """model (trained, eval mode); steps; train_s: training seconds; curve: rows of
     {step, train_s, wall_s, psnr} (held-out PSNR in dB at the working scale); plan: with a
     :class:`Deadline`, the wall-time plan (seconds): ``planned_train_s`` at the first step and at
-    the end, ``train_wall_s`` spent, ``render_s_per_ray`` measured last, ``stopped_by``."""
+    the end, ``after_training_s_first`` (the caller's share as first planned), ``train_wall_s`` spent, ``render_s_per_ray`` measured last, ``stopped_by``."""
 
     model: nn.Module
     steps: int
@@ -241,6 +241,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         opt.load_state_dict(state["optimizer"])
     if deadline is not None:
         plan["planned_train_s_first"] = round(remaining_train_s(), 3)
+        plan["after_training_s_first"] = round(deadline.after_s(s_per_ray), 3)
         plan["render_s_per_ray_untrained"] = s_per_ray
     wall0 = time.perf_counter() - (curve[-1]["wall_s"] if curve else 0.0)
     next_eval = (curve[-1]["train_s"] if curve else 0.0) + cfg.eval_every_s  # no point at step 0
