@@ -16,6 +16,7 @@ similarity frame: align them with :func:`recon.poses.align.umeyama` before compa
 """
 from __future__ import annotations
 
+import hashlib
 import shutil
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -47,7 +48,13 @@ class ColmapConfig:
     sequential_overlap: neighbours matched per image by the sequential matcher.
     final_ba_iterations: iterations of one extra global bundle adjustment with tight tolerances
         after mapping (0 skips it).
-    seed: COLMAP's RANSAC / mapper seed; num_threads: -1 = all cores.
+    seed: COLMAP's RANSAC seeds (two-view verification, mapper, triangulation) and its global PRNG.
+    num_threads: threads of feature extraction and matching (-1 = all cores); the result does not
+        depend on it. COLMAP numbers images in the order its extraction threads finish, and the
+        mapper breaks ties by image id, so two runs registered the views in different orders
+        (and once folded the model): the images are imported in name order before extraction, so
+        their ids are fixed. Incremental mapping and bundle adjustment run on one thread, since
+        Ceres sums residuals in scheduling order on more.
     """
 
     known_intrinsics: bool = True
@@ -186,6 +193,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
 
     if len(images) < 2:
         raise ReconstructionError(f"structure from motion needs at least 2 images, got {len(images)}")
+    if len({hashlib.sha256(Path(p).read_bytes()).digest() for p in images.values()}) == 1:
+        raise ReconstructionError(f"all {len(images)} images are identical: no camera motion to reconstruct from")
     if config.known_intrinsics and intrinsics is None:
         raise ValueError("known_intrinsics needs the intrinsics")
     workdir = Path(workdir)
@@ -203,6 +212,10 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         reader.camera_params = ",".join(repr(float(v)) for v in (k.fx, k.fy, k.cx, k.cy))
     else:
         reader.camera_model = "SIMPLE_RADIAL"
+    pycolmap.set_random_seed(config.seed)
+    # image ids in name order, whatever order the extraction threads finish in (see ColmapConfig)
+    pycolmap.Database.open(db).close()  # import_images needs the database file to exist
+    pycolmap.import_images(db, image_dir, camera_mode=pycolmap.CameraMode.SINGLE, image_names=names, options=reader)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.num_threads
     extraction.sift.max_num_features = config.max_features
@@ -213,19 +226,24 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = config.num_threads
     matching.use_gpu = False
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = config.seed
     use_seq = config.matcher == "sequential" or (config.matcher == "auto" and len(names) > config.exhaustive_max_images)
     if use_seq:
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = config.sequential_overlap
-        pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+        pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
+                                  verification_options=verification, device=pycolmap.Device.cpu)
     else:
-        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
+                                  device=pycolmap.Device.cpu)
 
     opts = pycolmap.IncrementalPipelineOptions()
     opts.random_seed = config.seed
     opts.mapper.random_seed = config.seed
     opts.triangulation.random_seed = config.seed
-    opts.num_threads = config.num_threads
+    opts.num_threads = 1  # scheduling-independent (see ColmapConfig)
+    opts.mapper.num_threads = 1
     opts.min_model_size = min(10, len(names))
     fixed = config.known_intrinsics
     opts.ba_refine_focal_length = not fixed
@@ -249,7 +267,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         so = ba.ceres.solver_options
         so.max_num_iterations = config.final_ba_iterations
         so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
-        so.num_threads = config.num_threads
+        so.num_threads = 1
         pycolmap.bundle_adjustment(rec, ba)
 
     cameras, registered = [], set()
