@@ -43,18 +43,27 @@ REFERENCE_SPP = 16
 #   slab (direct, ring of 4, uv 4, st 24, depth mode)   measured 29.25 dB -> floor 28.0
 #   slab-rebin (rebinned on the poses/gt cameras)       measured 28.89 dB -> floor 27.7
 #   reference noise ceiling (16 spp, 128x96)            measured 43.64 dB -> floor 40.0
-#   nerf/fast (FAST_SMALL, 40 steps; 2026-11-23)        measured 27.71 dB -> floor 27.2 (black + 0.45)
 FLOORS = {"slab": 28.0, "slab-rebin": 27.7}
 BLACK_MARGIN = 1.0
 NOISE_CEILING_FLOOR = 40.0
-NERF_FLOOR = 27.2
+# The NeRF (FAST_SMALL, 40 steps) is judged on lit pixels (reference radiance > LIT, max over RGB:
+# 7.6% and 7.8% of the views), where an empty image cannot score by being right about the
+# background: its PSNR there must beat an all-black image's, computed in the test, by
+# NERF_LIT_MARGIN dB (its MSE at most 79% of black's). Measured (2026-11-25, 40 steps): +1.43 and
+# +1.48 dB (over all pixels +0.98 dB: 27.71 against black's 26.73; the former fixed floor of 27.2 dB
+# sat 0.47 dB above black). Trained 2 steps instead, the NeRF scores 26.52 dB and fails.
+LIT = 0.01
+NERF_LIT_MARGIN = 1.0
 # The NeRF stage joins the end-to-end run with the fast model shrunk for tests (FAST_SMALL) and
 # 40 steps: a sanity check (finite, judged at its render size, not below an empty image by more
 # than the margin); its accuracy is the NeRF stage's own tests' business.
 # LUMIGRAPH_E2E_NERF=0 leaves it out.
 WITH_NERF = os.environ.get("LUMIGRAPH_E2E_NERF", "1") != "0"
 NERF_STEPS = 40
-NERF_MINUTES = 1.0
+# A time budget the step cap always meets first: the stage's --minutes bounds its wall time, and
+# on a loaded machine 1 minute stopped training after 10 of the 40 steps (the NeRF then scored
+# below an empty image), so what the test judged depended on the machine's load.
+NERF_MINUTES = 10.0
 
 # TINY_SCENE's held-out ring (45 deg) lies above its only train ring (35 deg): outside every uv
 # plane, so a light slab renders nothing there. Like the default scene, put it between two rings.
@@ -273,8 +282,17 @@ def test_metrics_sit_above_the_floors(tiny_artifacts):
         assert 0.0 <= met["models"][name]["z_within_fraction_mean"] <= 1.0
     assert met["models"]["slab-rebin"]["poses"] == "gt"
     assert met["models"]["slab"]["poses"] == "capture"
-    if WITH_NERF:  # 40 steps of a shrunk model: above an empty image, not yet above the slabs
-        assert met["models"]["nerf/fast"]["psnr_mean"] > NERF_FLOOR, met["models"]["nerf/fast"]["psnr_mean"]
+    if WITH_NERF:  # 40 steps of a shrunk model: above an empty image on lit pixels, not yet above the slabs
+        nerf_steps = json.loads((tiny_artifacts / "nerf" / "fast" / "metrics.json").read_text())["steps"]
+        assert nerf_steps == NERF_STEPS, f"the NeRF trained {nerf_steps} of {NERF_STEPS} steps: judged on what?"
+        assert met["models"]["nerf/fast"]["psnr_mean"] > black, (met["models"]["nerf/fast"]["psnr_mean"], black)
+        for ref_file in sorted((tiny_artifacts / "reference" / "linear").glob("*.exr")):
+            ref = read_exr(ref_file).astype(np.float64)
+            img = read_exr(tiny_artifacts / "nerf" / "fast" / "renders" / ref_file.name).astype(np.float64)
+            lit = ref.max(axis=2) > LIT
+            assert img.shape == ref.shape and lit.mean() > 0.05 and np.all(np.isfinite(img))
+            gain_db = 10 * np.log10(np.mean(ref[lit] ** 2) / np.mean((img[lit] - ref[lit]) ** 2))
+            assert gain_db > NERF_LIT_MARGIN, f"{ref_file.stem}: NeRF only {gain_db:.2f} dB above black on lit pixels"
     assert set(met["poses"]) == {"gt", "charuco"} and met["poses"]["gt"]["rotation_error_deg_mean"] == 0.0
     assert met["poses"]["charuco"]["status"] == "failed" and met["poses"]["charuco"]["reason"]
     assert met["best"]["model"] in met["models"]
