@@ -77,6 +77,17 @@ def _paths(node, prefix=()):
 
 PATHS = [p for p in _paths(BASE) if p]
 
+
+def _get(path):
+    node = BASE
+    for k in path:
+        node = node[k]
+    return node
+
+
+#: every number of the base spec (vector components included): where NaN and infinities go
+NUMBER_PATHS = [p for p in PATHS if isinstance(_get(p), (int, float)) and not isinstance(_get(p), bool)]
+
 hostile_scalars = st.sampled_from([NAN, INF, -INF, 0, -1, -0.0, 1e-300, 1e10, 1e308, 10 ** 30, -(10 ** 30), 2.5,
                                    "abc", "", None, True, [], {}, [1, 2], [[]], [NAN, 0, 0], [0, 0, 0], [1e10, 0, 0],
                                    "../../x", "\x00", "é漢字🙂", "1e999", "mirror"])
@@ -112,6 +123,7 @@ EMPTY_PATHS = [("objects",), ("lights",), ("materials",), ("textures",), ("camer
 
 structural = st.one_of(
     st.tuples(st.just("set"), st.sampled_from(PATHS), hostile_values),
+    st.tuples(st.just("set"), st.sampled_from(NUMBER_PATHS), st.sampled_from([NAN, INF, -INF])),
     st.builds(lambda edit: ("set", *edit), st.sampled_from(VALID_EDITS)),
     st.tuples(st.just("delete"), st.sampled_from(PATHS)),
     st.tuples(st.just("image_size"), image_sizes),
@@ -202,6 +214,32 @@ def _raw(text: str, kind: str | None) -> bytes:
     if kind == "not_utf8":
         return text.encode() + b"description: caf\xe9\n"
     return (extra[kind](text) if kind else text).encode()
+
+
+def must_refuse(mutations, raw_kind) -> str | None:
+    """Why the case's spec must be refused (exit 2), judged independently of rig.spec; None when
+    it may be valid. Every whole-file transformation is refusable; so is a NaN or an infinity
+    anywhere in the document (no field of a spec accepts one), and a view name that is a path."""
+    if raw_kind is not None:
+        return f"whole-file {raw_kind}"
+    spec = copy.deepcopy(BASE)
+    for m in mutations:
+        _apply(spec, m)
+
+    def walk(node):
+        if isinstance(node, float) and not math.isfinite(node):
+            yield f"non-finite number {node}"
+        elif isinstance(node, dict):
+            for k, v in node.items():
+                if k == "name" and isinstance(v, str) and isinstance(node.get("eye"), list) and \
+                        ("/" in v or "\\" in v or v.startswith(".") or v == "" or "\x00" in v):
+                    yield f"view name {v!r} is a path"
+                yield from walk(v)
+        elif isinstance(node, list):
+            for v in node:
+                yield from walk(v)
+
+    return next(walk(spec), None)
 
 
 def write_case(folder: Path, mutations, raw_kind, garbage: bytes) -> Path:
@@ -312,10 +350,12 @@ def _tree(folder: Path) -> set[str]:
     return {str(p.relative_to(folder)) for p in folder.rglob("*")}
 
 
-def check_outcome(rc, lines: list[str], spec: Path, out: Path, root: Path, before: set[str], command: str) -> str:
-    """Judge one case (assert); returns "exit 0" or "exit 2"."""
+def check_outcome(rc, lines: list[str], spec: Path, out: Path, root: Path, before: set[str], command: str,
+                  refuse: str | None = None) -> str:
+    """Judge one case (assert); ``refuse``: why it must exit 2 (must_refuse). Returns "exit 0" or "exit 2"."""
     after = _tree(root)
     assert rc in (0, 2), f"exit {rc!r} (a traceback in the real CLI); stderr: {lines[-3:]}"
+    assert rc == 2 or refuse is None, f"exit 0 although the spec has a {refuse}"
     if rc == 2:
         assert len(lines) == 1, f"exit 2 must print one line, got {lines}"
         prefix = f"lumigraph: error: {spec}: "
@@ -380,7 +420,7 @@ def test_generated_specs_exit_0_with_finite_images_or_2_with_one_line(fuzz_root,
     if os.environ.get("FUZZ_VERBOSE"):  # one line per case, to see what the seed generates
         print(f"\n{command} exit {rc} {lines[:1]} <- {mutations} {raw_kind}"[:500])
     try:
-        COUNTS[check_outcome(rc, lines, spec, out, fuzz_root, before, command)] += 1
+        COUNTS[check_outcome(rc, lines, spec, out, fuzz_root, before, command, must_refuse(mutations, raw_kind))] += 1
         COUNTS["other"] -= 1
     finally:
         shutil.rmtree(folder.parent.parent, ignore_errors=True)
@@ -415,7 +455,7 @@ def test_fixed_hostile_specs_through_the_real_process(fuzz_root, name):
     COUNTS["subprocess"] += 1
     rc, lines = run_process(_args(command, spec, out)[:-2])  # default workers, as a user runs it
     try:
-        outcome = check_outcome(rc, lines, spec, out, root, before, command)
+        outcome = check_outcome(rc, lines, spec, out, root, before, command, must_refuse(mutations, raw_kind))
     except AssertionError:
         COUNTS["other"] += 1
         raise

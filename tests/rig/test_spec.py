@@ -279,7 +279,7 @@ def test_degenerate_directions_are_refused(tmp_path, mutate, field, says):
 def test_camera_up_vectors_are_used_by_direction_only(tmp_path):
     """A view's up of any non-zero length gives the same camera as the unit vector."""
     poses = []
-    for up in ([0, 0, 1], [0, 0, 1e-6], [0, 0, 250]):
+    for up in ([0, 0, 1], [0, 0, 1e-10], [0, 0, 250]):  # render.poses.look_at alone refuses up 1e-10
         data = minimal_spec()
         _add_view(name="v", eye=[1, -2, 0.5], target=[0, 0, 0.1], up=up)(data)
         poses.append(load_scene(_write(tmp_path, data)).cameras["test"][0].cam_to_world)
@@ -347,6 +347,18 @@ def test_view_names_must_be_plain_file_stems(tmp_path, name):
     _add_view(name=name, eye=[1, 1, 1], target=[0, 0, 0])(data)
     msg = _refused(tmp_path, data, "cameras.test.0.view.name")
     assert msg.isprintable()  # a hostile name cannot break the one line or fool the terminal
+
+
+@pytest.mark.parametrize("mutate, field", [
+    (lambda s: s["objects"][0].update(material="gr\ney\x1b[31m"), "objects.0.material"),
+    (lambda s: s["materials"].update({"bad\rkey\u2028": {"type": "lambertian", "albedo": "x"}}), "materials.bad"),
+])
+def test_names_in_error_lines_are_escaped(tmp_path, mutate, field):
+    """Whatever a spec puts in a name, the error stays one printable line (no newline, carriage
+    return, line separator or terminal escape from the spec)."""
+    data = minimal_spec()
+    mutate(data)
+    assert _refused(tmp_path, data, field).isprintable()
 
 
 def test_scene_name_must_be_a_plain_file_stem(tmp_path):
