@@ -14,9 +14,9 @@ from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Me
                           Scene, SceneObject, SpotLight)
 
 from .layouts import layout_cameras, make_intrinsics
-from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec, RoughConductorSpec,
-                   RoughDielectricSpec, SceneSpec,
-                   ShapeSpec, SpecError, SpotLightSpec, load_spec, resolve_file, resolve_scene_path)
+from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec,
+                   RoughConductorSpec, RoughDielectricSpec, SceneSpec, ShapeSpec, SpecError, SpotLightSpec, load_spec,
+                   resolve_file, resolve_scene_path)
 from .textures import load_texture
 from .volumes import load_density_file, smoke_density
 

@@ -23,7 +23,8 @@ from typing import Annotated, Literal, Union
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-__all__ = ["SceneSpec", "SpecError", "load_spec", "resolve_scene_path", "resolve_file", "SCENES_DIR", "view_names", "layout_count",
+__all__ = ["SceneSpec", "SpecError", "load_spec", "resolve_scene_path", "resolve_file", "SCENES_DIR", "view_names",
+           "layout_count",
            "MAX_VIEWS", "MAX_PIXELS_PER_VIEW", "MAX_TEXTURE_SIDE", "MAX_MAGNITUDE", "MAX_NAME_CHARS",
            "MAX_SPEC_BYTES", "MAX_YAML_NODES", "CHARUCO_DICTIONARIES", "SKIMAGE_IMAGES"]
 

@@ -578,7 +578,8 @@ _TYPE_LINE = _MINI_YAML.splitlines().index("    type: lambertian") + 1
 
 
 @pytest.mark.parametrize("text, says", [
-    (_MINI_YAML + "name: again\n", f"line {len(_MINI_YAML.splitlines()) + 1}: duplicate key 'name' (first given at line 1)"),
+    (_MINI_YAML + "name: again\n",
+     f"line {len(_MINI_YAML.splitlines()) + 1}: duplicate key 'name' (first given at line 1)"),
     (_MINI_YAML.replace("type: lambertian", "type: lambertian\n    type: mirror"),
      f"line {_TYPE_LINE + 1}: duplicate key 'type' (first given at line {_TYPE_LINE})"),
     ("", "the scene file is empty"),
