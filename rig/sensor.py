@@ -229,10 +229,23 @@ def apply_sensor(image: np.ndarray, intrinsics: Intrinsics, config: SensorConfig
     return out
 
 
+#: largest mean drawn from numpy's Poisson sampler; above it, the Gaussian limit (see below)
+_POISSON_MAX = 1e12
+
+
 def _poisson_gaussian(x: np.ndarray, gain: float, read_sigma: float, rng: np.random.Generator) -> np.ndarray:
     """(H, W, 3) float32 radiance -> noisy float32 (see the module docstring)."""
     lam = np.maximum(x.astype(np.float64) * gain, 0.0)  # interpolation may undershoot 0 by rounding
-    counts = rng.poisson(lam).astype(np.float64)
+    if lam.max() <= _POISSON_MAX:
+        counts = rng.poisson(lam).astype(np.float64)
+    else:
+        # numpy's Poisson sampler refuses means above ~9.2e18 (int64 counts). There Poisson(lam) is
+        # N(lam, lam) to far below float32 resolution (skewness lam^-1/2 < 1e-6): draw that instead.
+        # Images without such pixels draw exactly as before.
+        big = lam > _POISSON_MAX
+        counts = np.empty_like(lam)
+        counts[~big] = rng.poisson(lam[~big])
+        counts[big] = rng.normal(lam[big], np.sqrt(lam[big]))
     if read_sigma > 0:
         counts += rng.normal(0.0, read_sigma, size=counts.shape)
     return (np.maximum(counts, 0.0) / gain).astype(np.float32)

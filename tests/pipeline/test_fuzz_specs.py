@@ -481,3 +481,18 @@ def test_view_name_cannot_write_outside_or_inside_out(tmp_path, command, view_na
     assert len(lines) == 1 and "cameras.test.1.view.name" in lines[0] and SPEC_NAME in lines[0], lines
     assert _tree(tmp_path) == before and not out.exists()
     assert {p: p.exists() and p.stat().st_mtime_ns for p in absolute} == existed
+
+
+def test_spec_at_its_sensor_and_radiometric_bounds_captures_finite_images(tmp_path):
+    """Every bound at once, all allowed: noise gain 1e6 photons per unit radiance, exposure 1e6,
+    intensity 1e9. Photon means reach ~1e20, past numpy's Poisson sampler (~9.2e18): the sensor
+    draws the Gaussian limit there instead of failing (exit 1 before)."""
+    spec = copy.deepcopy(BASE)
+    spec["sensor"] = {"noise": [1e6, 3], "exposure": 1e6}
+    spec["lights"][0]["intensity"] = [1e9, 1e9, 1e9]
+    path = tmp_path / "scene" / SPEC_NAME
+    path.parent.mkdir()
+    path.write_text(yaml.safe_dump(spec))
+    rc, lines = run_in_process(_args("capture", path, tmp_path / "out"))
+    assert rc == 0, (rc, lines)
+    check_finite_stage(tmp_path / "out", "capture")
