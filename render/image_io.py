@@ -139,7 +139,7 @@ def read_exr(path) -> np.ndarray:
         except Exception as exc:  # OpenEXR raises assorted types (RuntimeError, ValueError, ...) on corrupt files
             error = exc
     if error is not None:
-        raise ValueError(f"{path}: unreadable OpenEXR image ({_native_reason(captured, path, error)})") from None
+        raise ValueError(f"{path}: unreadable EXR image ({_native_reason(captured, path, error)})") from None
     _reemit(captured)
     return out
 
@@ -158,7 +158,7 @@ def exr_size(path) -> tuple[int, int]:
         except Exception as exc:
             error = exc
     if error is not None:
-        raise ValueError(f"{path}: unreadable OpenEXR image ({_native_reason(captured, path, error)})") from None
+        raise ValueError(f"{path}: unreadable EXR image ({_native_reason(captured, path, error)})") from None
     _reemit(captured)
     return int(x1 - x0 + 1), int(y1 - y0 + 1)
 
