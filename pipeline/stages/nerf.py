@@ -29,8 +29,8 @@ Time: ``minutes`` bounds the whole stage's wall time from the call (loading, tra
 renders, writing; the interpreter's start and imports before it are not counted). Training runs
 against a deadline (:class:`recon.nerf.train.Deadline`): it stops when the time left covers only
 the held-out renders, planned from the render cost per ray measured on the model (untrained
-first, an upper bound, then at every held-out curve evaluation) but at most ``RENDER_SHARE`` of
-the budget, plus writing (``WRITE_S_PER_MPIX``, the checkpoint at ``CHECKPOINT_BYTES_PER_S``).
+first, then at every held-out curve evaluation) at the finest evaluation scale whose cost fits
+``RENDER_SHARE`` of the budget, plus writing (``WRITE_S_PER_MPIX``, the checkpoint at ``CHECKPOINT_BYTES_PER_S``).
 After training the held-out views are evaluated at the working scale when their measured cost
 fits the time left, else at the finest coarser scale that fits (working size / k, the reference
 area-averaged by k; ``eval_factor`` in metrics, renders still written at the capture's size).
@@ -74,8 +74,8 @@ CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
 #: leave short runs no training; what does not fit at the end is evaluated at a coarser scale
 RENDER_SHARE = 0.25
 #: writing one held-out view (linear EXR, PNG preview, depth EXR) per megapixel of the capture,
-#: seconds (0.6 s measured for 1280x960 on 2 busy cores)
-WRITE_S_PER_MPIX = 1.0
+#: seconds (measured 0.6 on 2 cores shared by 7 processes, 0.22 on idle ones)
+WRITE_S_PER_MPIX = 0.6
 #: checkpoint writing and copying speed assumed by the plan (a local disk, conservatively)
 CHECKPOINT_BYTES_PER_S = 100e6
 
@@ -192,9 +192,10 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
     ckpt_s_est = 0.0
 
     def after_training_s(s_per_ray: float) -> float:
-        """Held-out renders (planned at most RENDER_SHARE of the budget: a coarser evaluation
-        scale takes what does not fit), writing the views and the checkpoint."""
-        render = min(s_per_ray * (rays_at_1 + rays_full), RENDER_SHARE * budget_s)
+        """Held-out renders at the finest evaluation scale whose cost fits RENDER_SHARE of the
+        budget (the coarsest when none does), writing the views and the checkpoint."""
+        k = eval_factor(s_per_ray, rays_at_1, RENDER_SHARE * budget_s - s_per_ray * rays_full, factors)
+        render = min(s_per_ray * (rays_at_1 / (k * k) + rays_full), RENDER_SHARE * budget_s)
         return render + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={

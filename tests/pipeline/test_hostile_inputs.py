@@ -290,7 +290,7 @@ def test_nerf_minutes_bounds_the_stage_and_records_a_consistent_plan(work):
     """`nerf --minutes 1` on the tiny capture: the plan in metrics.json fits the budget. (A step
     of the untrained fast model costs seconds, 256 rays x 400 samples, so the budget is not made
     smaller: the plan's figures are checked against each other, not the clock.)"""
-    from pipeline.stages.nerf import RENDER_SHARE, WRITE_S_PER_MPIX, eval_factors
+    from pipeline.stages.nerf import RENDER_SHARE, WRITE_S_PER_MPIX, eval_factor, eval_factors
 
     art = work / "art"
     out = art / "nerf" / "fast"
@@ -308,9 +308,11 @@ def test_nerf_minutes_bounds_the_stage_and_records_a_consistent_plan(work):
     assert plan["render_s"] <= plan["render_budget_s"] or k == max(eval_factors(w, h))
     if k > 1:  # a finer scale would not have fitted
         assert plan["render_s"] * k ** 2 / eval_factors(w, h)[eval_factors(w, h).index(k) - 1] ** 2 > plan["render_budget_s"]
-    # training was first planned around the renders' reserve (their untrained cost, at most RENDER_SHARE
-    # of the budget) and the writes
-    reserve = min(plan["render_s_per_ray_untrained"] * len(m["views"]) * w * h, RENDER_SHARE * t["budget_s"])
+    # training was first planned around the renders' reserve (their untrained cost at the finest scale
+    # fitting RENDER_SHARE of the budget) and the writes
+    rays = len(m["views"]) * w * h
+    k_first = eval_factor(plan["render_s_per_ray_untrained"], rays, RENDER_SHARE * t["budget_s"], eval_factors(w, h))
+    reserve = min(plan["render_s_per_ray_untrained"] * rays / k_first ** 2, RENDER_SHARE * t["budget_s"])
     writes = WRITE_S_PER_MPIX * len(m["views"]) * SIZE[0] * SIZE[1] / 1e6
     assert plan["after_training_s_first"] >= reserve + writes - 2e-3  # (rounded to ms)
     assert plan["train_s_first"] <= t["budget_s"] - plan["load_s"] - plan["after_training_s_first"]
