@@ -76,6 +76,10 @@ RENDER_SHARE = 0.25
 #: writing one held-out view (linear EXR, PNG preview, depth EXR) per megapixel of the capture,
 #: seconds (measured 0.6 on 2 cores shared by 7 processes, 0.22 on idle ones)
 WRITE_S_PER_MPIX = 0.6
+#: a render's cost per ray as planned: the measured one (on a probe of 128 rays) times this
+RENDER_MARGIN = 1.25
+#: a held-out view's fixed cost besides its rays (scoring, upsampling to the capture's size), seconds
+VIEW_OVERHEAD_S = 0.3
 #: checkpoint writing and copying speed assumed by the plan (a local disk, conservatively)
 CHECKPOINT_BYTES_PER_S = 100e6
 
@@ -191,11 +195,14 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
 
     ckpt_s_est = 0.0
 
+    view_s = VIEW_OVERHEAD_S * len(data.test)
+
     def after_training_s(s_per_ray: float) -> float:
         """Held-out renders at the finest evaluation scale whose cost fits RENDER_SHARE of the
         budget (the coarsest when none does), writing the views and the checkpoint."""
-        k = eval_factor(s_per_ray, rays_at_1, RENDER_SHARE * budget_s - s_per_ray * rays_full, factors)
-        render = min(s_per_ray * (rays_at_1 / (k * k) + rays_full), RENDER_SHARE * budget_s)
+        s = RENDER_MARGIN * s_per_ray
+        k = eval_factor(s, rays_at_1, RENDER_SHARE * budget_s - s * rays_full - view_s, factors)
+        render = min(s * (rays_at_1 / (k * k) + rays_full) + view_s, RENDER_SHARE * budget_s)
         return render + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={
@@ -231,10 +238,10 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
                           "rendered (steps 0 in metrics.json)")
         train_end = time.perf_counter()
         plan = dict(result.plan)
-        s_per_ray = plan.get("render_s_per_ray", 0.0)
+        s_per_ray = RENDER_MARGIN * plan.get("render_s_per_ray", 0.0)
         available = math.inf
         if deadline is not None:
-            available = deadline_end - train_end - write_s - checkpoint_s(result.model)
+            available = deadline_end - train_end - write_s - checkpoint_s(result.model) - view_s
             k = eval_factor(s_per_ray, rays_at_1, available, factors)
             if full_res and s_per_ray * (rays_at_1 / (k * k) + rays_full) > available:
                 full_res = False  # the full-resolution render does not fit: repeat working-scale pixels
@@ -287,7 +294,8 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: flo
                             "train_s": plan["planned_train_s_last"],
                             "render_s": round(s_per_ray * (rays_at_1 / (k * k) + (rays_full if full_res else 0)), 3),
                             "render_s_per_ray": s_per_ray, "render_budget_s": round(available, 3),
-                            "render_s_per_ray_untrained": plan["render_s_per_ray_untrained"],
+                            "render_s_per_ray_first": RENDER_MARGIN * plan["render_s_per_ray_untrained"],
+                            "render_s_per_view": VIEW_OVERHEAD_S,
                             "write_s": round(write_s + checkpoint_s(result.model), 3),
                             "eval_factor": k, "eval_size": [eval_w, eval_h],
                             "render_full_res": full_res},

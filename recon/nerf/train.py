@@ -14,9 +14,9 @@ and ``resume=True`` continues from it up to the same budget.
 A :class:`Deadline` bounds the wall time of training *and of what follows it*: the caller says
 when everything must be done (a ``time.perf_counter()`` value) and how long it needs after
 training given the measured render cost per ray (held-out renders, writing). Training then plans
-its length from the wall clock: the render cost is measured on the untrained model before the
-first step (every sample of every ray is evaluated then, so it bounds the trained cost from
-above) and again at every held-out curve evaluation; a step is started only when it, the curve
+its length from the wall clock: the render cost per ray is measured on the model before the first
+step, again after every grid upsampling (larger grids render slower) and at every held-out curve
+evaluation (occupancy skipping makes a trained model cheaper); a step is started only when it, the curve
 evaluations still due and the caller's share fit before the end (so a budget too short for one
 step trains none: the caller still renders and writes the untrained model in time). The schedule's progress
 (learning rates, grid upsampling) follows the planned length, never decreasing; the final
@@ -206,13 +206,19 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
                      for v, px in zip(data.test, pixels))
     plan: dict = {}
     s_per_ray = 0.0
-    if deadline is not None:  # the untrained model evaluates every sample: an upper bound of the trained cost
+    if deadline is not None:  # fixed probe pixels of a held-out view: the render cost of the model as it is
         g = torch.Generator().manual_seed(cfg.seed + 2)
         k0 = data.test[0].camera.intrinsics
         probe = torch.randperm(k0.width * k0.height, generator=g)[:min(136, k0.width * k0.height)]
+
+    def probe_cost() -> float:
         render_view(model, data.test[0].camera, pixels=probe[:8])  # first-call overheads are not a ray's cost
-        s_per_ray = render_cost_per_ray(model, data.test[0].camera, probe[8:] if probe.shape[0] > 8 else probe)
+        cost = render_cost_per_ray(model, data.test[0].camera, probe[8:] if probe.shape[0] > 8 else probe)
         model.train()
+        return cost
+
+    if deadline is not None:
+        s_per_ray = probe_cost()
     train_wall = 0.0       # wall seconds spent in steps (with a deadline)
     # a step's wall time, decaying maximum of the recent ones; before the first: its forward pass at
     # the probe's cost per ray, backward about twice that
@@ -274,6 +280,10 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         w0 = time.perf_counter()
         if model.on_progress(progress_now, step):
             opt = _make_optimizer(model, progress_now)
+            hook_wall = max(hook_wall, time.perf_counter() - w0)
+            if deadline is not None:  # larger grids render slower: measure again
+                s_per_ray = probe_cost()
+                w0 = time.perf_counter()
         hook_wall = max(hook_wall, time.perf_counter() - w0)
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]

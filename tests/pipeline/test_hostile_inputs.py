@@ -308,11 +308,11 @@ def test_nerf_minutes_bounds_the_stage_and_records_a_consistent_plan(work):
     assert plan["render_s"] <= plan["render_budget_s"] or k == max(eval_factors(w, h))
     if k > 1:  # a finer scale would not have fitted
         assert plan["render_s"] * k ** 2 / eval_factors(w, h)[eval_factors(w, h).index(k) - 1] ** 2 > plan["render_budget_s"]
-    # training was first planned around the renders' reserve (their untrained cost at the finest scale
-    # fitting RENDER_SHARE of the budget) and the writes
-    rays = len(m["views"]) * w * h
-    k_first = eval_factor(plan["render_s_per_ray_untrained"], rays, RENDER_SHARE * t["budget_s"], eval_factors(w, h))
-    reserve = min(plan["render_s_per_ray_untrained"] * rays / k_first ** 2, RENDER_SHARE * t["budget_s"])
+    # training was first planned around the renders' reserve (their first measured cost at the finest
+    # scale fitting RENDER_SHARE of the budget) and the writes
+    rays, views_s, s = len(m["views"]) * w * h, plan["render_s_per_view"] * len(m["views"]), plan["render_s_per_ray_first"]
+    k_first = eval_factor(s, rays, RENDER_SHARE * t["budget_s"] - views_s, eval_factors(w, h))
+    reserve = min(s * rays / k_first ** 2 + views_s, RENDER_SHARE * t["budget_s"])
     writes = WRITE_S_PER_MPIX * len(m["views"]) * SIZE[0] * SIZE[1] / 1e6
     assert plan["after_training_s_first"] >= reserve + writes - 2e-3  # (rounded to ms)
     assert plan["train_s_first"] <= t["budget_s"] - plan["load_s"] - plan["after_training_s_first"]
