@@ -174,7 +174,7 @@ def test_run_passes_one_engine_to_every_stage(scenes, monkeypatch, tmp_path):
     class Stop(Exception):
         pass
 
-    def fake_capture(rig, scene_file, out, seed=None, quiet=False, cluster=None):
+    def fake_capture(rig, scene_file, out, seed=None, quiet=False, cluster=None, **kw):
         seen["capture"] = cluster
         return {"metrics": {"views": 0}, "params": {"renderer": "raster"}, "wall_time_s": 0.0}
 
