@@ -114,52 +114,50 @@ def _native_reason(captured: dict[int, bytes], path: Path, exc: Exception) -> st
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
+def _read_openexr(path, read, **open_kw):
+    """``read(f)`` on the opened OpenEXR file ``path``. FileNotFoundError when absent; ValueError,
+    one line naming the file, when OpenEXR cannot read it: what its native core prints about a
+    corrupt file goes into that line instead of the terminal (kept and re-emitted on success)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such image")
+    error = None
+    with _native_output_captured() as captured:
+        try:
+            with OpenEXR.File(str(path), **open_kw) as f:
+                result = read(f)
+        except Exception as exc:  # OpenEXR raises assorted types (RuntimeError, ValueError, ...) on corrupt files
+            error = exc
+    if error is not None:
+        raise ValueError(f"{path}: unreadable EXR image ({_native_reason(captured, path, error)})") from None
+    _reemit(captured)
+    return result
+
+
+def _exr_pixels(f) -> np.ndarray:
+    ch = f.channels()
+    if "RGB" in ch:
+        return np.asarray(ch["RGB"].pixels, dtype=np.float32)
+    if "Y" in ch:
+        return np.asarray(ch["Y"].pixels, dtype=np.float32)
+    if all(c in ch for c in "RGB"):
+        return np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+    raise ValueError(f"no RGB or Y channels (has {sorted(ch)})")
+
+
 def read_exr(path) -> np.ndarray:
     """Read an OpenEXR written by :func:`write_exr`: (H, W, 3) or (H, W) float32.
 
     FileNotFoundError when absent; ValueError, one line naming the file, when the file is not a
     readable OpenEXR image (truncated, corrupt, no RGB or Y channels). Nothing is printed: what
     OpenEXR's native core prints about a corrupt file goes into that line instead."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image")
-    error = None
-    with _native_output_captured() as captured:
-        try:
-            with OpenEXR.File(str(path)) as f:
-                ch = f.channels()
-                if "RGB" in ch:
-                    out = np.asarray(ch["RGB"].pixels, dtype=np.float32)
-                elif "Y" in ch:
-                    out = np.asarray(ch["Y"].pixels, dtype=np.float32)
-                elif all(c in ch for c in "RGB"):
-                    out = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-                else:
-                    raise ValueError(f"no RGB or Y channels (has {sorted(ch)})")
-        except Exception as exc:  # OpenEXR raises assorted types (RuntimeError, ValueError, ...) on corrupt files
-            error = exc
-    if error is not None:
-        raise ValueError(f"{path}: unreadable EXR image ({_native_reason(captured, path, error)})") from None
-    _reemit(captured)
-    return out
+    return _read_openexr(path, _exr_pixels)
 
 
 def exr_size(path) -> tuple[int, int]:
     """(width, height) of an OpenEXR image from its header alone (ValueError naming the file when
     the header is unreadable)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such image")
-    error = None
-    with _native_output_captured() as captured:
-        try:
-            with OpenEXR.File(str(path), header_only=True) as f:
-                (x0, y0), (x1, y1) = f.header()["dataWindow"]
-        except Exception as exc:
-            error = exc
-    if error is not None:
-        raise ValueError(f"{path}: unreadable EXR image ({_native_reason(captured, path, error)})") from None
-    _reemit(captured)
+    (x0, y0), (x1, y1) = _read_openexr(path, lambda f: f.header()["dataWindow"], header_only=True)
     return int(x1 - x0 + 1), int(y1 - y0 + 1)
 
 

@@ -104,6 +104,12 @@ def _non_negative(v: tuple[float, ...], what: str) -> tuple[float, ...]:
     return v
 
 
+def _positive(v: tuple[float, ...], what: str) -> tuple[float, ...]:
+    if any(x <= 0 for x in v):
+        raise ValueError(f"{what} must be positive")
+    return v
+
+
 def _check_stem(name: str) -> str:
     """A name that becomes a file stem: printable, no path separators or whitespace, not hidden."""
     if not name:
@@ -294,9 +300,7 @@ class RoughConductorSpec(_Strict):
     @field_validator("eta")
     @classmethod
     def _positive_eta(cls, v):
-        if any(x <= 0 for x in v):
-            raise ValueError("eta components must be positive")
-        return v
+        return _positive(v, "eta components")
 
     @field_validator("k")
     @classmethod
@@ -322,10 +326,8 @@ class BoxShape(_Strict):
 
     @field_validator("size")
     @classmethod
-    def _positive(cls, v):
-        if any(x <= 0 for x in v):
-            raise ValueError("box size must be positive")
-        return v
+    def _positive_size(cls, v):
+        return _positive(v, "box size")
 
 
 class SphereShape(_Strict):
