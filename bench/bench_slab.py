@@ -28,8 +28,7 @@ from pathlib import Path
 from bench.common import median_time, write_result
 from render.camera import Camera, Intrinsics
 from render.camera_io import read_cameras_json
-from render.slab import MODES, render_rays, render_view
-from render.slab_io import load_slabs
+from render.lightfield import MODES, load_slabs, render_pinhole, render_rays
 
 SIZE = 256
 REPEATS = 10
@@ -52,7 +51,7 @@ def _fps_rows(slabs, cam, modes, baseline: bool) -> dict:
     for mode in modes:
         row = {}
         for threads in (1, 2):
-            wall, cpu = _frame_times(lambda: render_view(slabs, cam, mode, threads=threads), REPEATS)
+            wall, cpu = _frame_times(lambda: render_pinhole(slabs, cam, mode, threads=threads), REPEATS)
             row[f"threads_{threads}_ms"] = round(wall * 1e3, 2)
             row[f"threads_{threads}_fps"] = round(1.0 / wall, 1)
             row[f"threads_{threads}_cpu_ms"] = round(cpu * 1e3, 2)

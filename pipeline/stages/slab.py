@@ -2,11 +2,11 @@
 
 Layout (DESIGN.md)::
 
-    slab/slabs/slabs.json, <name>.radiance.npy, <name>.depth.npy   the slab set (render.slab_io)
+    slab/slabs/slabs.json, <name>.radiance.npy, <name>.depth.npy   the slab set (render.lightfield.storage)
     slab/renders/<view>.exr, <view>.png    held-out views in the primary mode (capture's names)
     slab/errors/<view>.png, <view>.exr     |render - reference| (PNG: mean over RGB, x8, grey)
     slab/modes/<mode>/<view>.png           previews of every interpolation mode (Fig. 13)
-    slab/compressed/                       the slab set vector-quantized (render.slab_io; when
+    slab/compressed/                       the slab set vector-quantized (render.lightfield.storage; when
                                            ``compress``), and renders_vq/<view>.png from it
     slab/metrics.json                      PSNR / SSIM per view and per mode, coverage, sizes,
                                            compression ratio and its PSNR cost
@@ -18,7 +18,7 @@ either ``direct`` (sheared-perspective renders by the rig's rasterizer, or its p
 the scene's effects require it, handed to :func:`recon.slab.acquire_direct` as a callback: recon
 never imports rig) or by ``rebin`` (:func:`recon.slab.rebin_slabs` from the captured train views
 and their depth maps, with the cameras of ``poses_dir`` when given). Rendering is
-:mod:`render.slab`.
+:mod:`render.lightfield`.
 
 Reference for the metrics: ``reference_dir/linear/<view>.exr`` when given, else the sibling
 ``reference`` stage folder of the capture (``artifacts/<scene>/reference``) when it is finished,
@@ -46,8 +46,8 @@ from render.camera import Camera
 from render.color import to_srgb8
 from render.image_io import read_exr, write_exr, write_png, write_preview
 from render.metrics import psnr, ssim
-from render.slab import MODES, LightSlab, render_view
-from render.slab_io import load_slabs, save_slabs, slab_file_bytes
+from render.lightfield import MODES, LightSlab, render_pinhole
+from render.lightfield import load_slabs, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
@@ -286,7 +286,7 @@ def evaluate_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MO
     out = {}
     for mode in modes:
         t0 = time.perf_counter()
-        img = render_view(slabs, cam, mode, background)
+        img = render_pinhole(slabs, cam, mode, background)
         t = time.perf_counter() - t0
         with_ssim = ssim_modes is None or mode in ssim_modes
         out[mode] = ({"psnr": psnr(img, ref), **({"ssim": ssim(img, ref)} if with_ssim else {})}, img, t)

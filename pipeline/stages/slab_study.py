@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera, Intrinsics
-from render.slab import MODES, render_view
-from render.slab_io import load_slabs
+from render.lightfield import MODES, render_pinhole
+from render.lightfield import load_slabs
 
 from ..artifacts import BadInput, Manifest, atomic_stage, write_json
 from .slab import SlabStageConfig, _cameras, _read_image, build_slabs, evaluate_views, find_reference
@@ -43,11 +43,11 @@ def _ms_256(slabs, cam: Camera, mode: str, repeats: int = 3) -> tuple[float, flo
     """(median wall ms, minimum CPU ms over both threads) of one 256x256 frame of ``cam``'s pose
     (40 degree vertical field), two threads."""
     c = Camera(Intrinsics.from_fov(256, 256, 40.0), cam.cam_to_world, cam.name)
-    render_view(slabs, c, mode)
+    render_pinhole(slabs, c, mode)
     wall, cpu = [], []
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
-        render_view(slabs, c, mode)
+        render_pinhole(slabs, c, mode)
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     return float(np.median(wall) * 1e3), float(np.min(cpu) * 1e3)

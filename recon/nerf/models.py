@@ -1,7 +1,7 @@
 """Radiance-field models, pure PyTorch: the faithful NeRF and a fast factored-grid model.
 
 Every model lives in an axis-aligned box [lo, hi] (world units) and renders rays with the shared
-quadrature :func:`render.volume.composite`; outside the box there is only the background colour.
+quadrature :func:`recon.nerf.volume.composite`; outside the box there is only the background colour.
 Densities are defined per unit of the box's normalised coordinates and converted to world units
 (sigma_world = sigma_unit * 2 / side for [-1, 1] coordinates), so the same settings fit any scene
 scale.
@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from render.volume import STOP_TRANSMITTANCE, composite, exclusive_transmittance, optical_depth, ray_aabb
+from .volume import STOP_TRANSMITTANCE, composite, exclusive_transmittance, optical_depth, ray_aabb
 
 from .encoding import SH_DIM, PositionalEncoding, sh_encoding
 from .sampling import march_steps, sample_pdf, stratified

@@ -11,8 +11,8 @@ A tile is coded by its nearest coarse cell, then its nearest entry of that cell:
 distances instead of 16,384. Distances are squared errors of linear radiance, the quantity PSNR
 measures. The codebook is rounded to float16 (what is stored) before encoding.
 
-Decoding is :class:`render.slab.VQRadiance`: the renderer looks rays up through the codebook
-directly. Files: :func:`render.slab_io.save_slabs` (indices deflate-compressed, as the paper's
+Decoding is :class:`render.lightfield.VQRadiance`: the renderer looks rays up through the codebook
+directly. Files: :func:`render.lightfield.storage.save_slabs` (indices deflate-compressed, as the paper's
 gzip stage).
 """
 from __future__ import annotations
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from render.slab import LightSlab, VQRadiance
+from render.lightfield import LightSlab, VQRadiance
 
 __all__ = ["VQConfig", "VQStats", "tiles_of", "sample_tiles", "kmeans", "TreeCodebook", "train_codebook",
            "encode_slab", "compress_slabs"]
@@ -80,7 +80,7 @@ def _padded(n: int) -> int:
 
 def tiles_of(radiance: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
     """(T, 48) float32 tiles of a (Nv, Nu, Nt, Ns, 3) radiance array for the uv tile rows ``rows``
-    (all by default), in the order of :class:`render.slab.VQRadiance` codes (row-major over
+    (all by default), in the order of :class:`render.lightfield.VQRadiance` codes (row-major over
     (Tv, Tu, Tt, Ts)); each tile's rays in order (v, u, t, s), RGB last. Odd counts repeat the
     edge sample (those rays are never looked up)."""
     nv, nu, nt, ns, _ = radiance.shape
@@ -247,7 +247,7 @@ def train_codebook(sample: np.ndarray, config: VQConfig = VQConfig()) -> TreeCod
 
 
 def encode_slab(slab: LightSlab, book: TreeCodebook, stats: VQStats | None = None) -> LightSlab:
-    """The slab with its radiance replaced by :class:`render.slab.VQRadiance` over ``book``'s
+    """The slab with its radiance replaced by :class:`render.lightfield.VQRadiance` over ``book``'s
     entries and its depth rounded to float16 (stored so; ~1 mm at 1 m, far below a sample's
     footprint); ``stats`` accumulates sizes and the squared error over the slab's rays."""
     r = slab.radiance

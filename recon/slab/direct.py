@@ -3,7 +3,7 @@
 The renderer is handed in as a function ``render(camera) -> (rgb, depth)`` (the pipeline wraps
 the rig's rasterizer or path tracer; recon never imports rig). For uv sample (i, j) the camera
 sits at the sample's centre on the uv plane and images exactly the st quad
-(:func:`render.slab.sheared_camera`), so its pixels are the slab's st samples.
+(:func:`render.lightfield.sheared_camera`), so its pixels are the slab's st samples.
 
 Prefiltering against aliasing, as in the paper: ``uv_supersample = K`` renders K x K cameras
 spread over the uv cell and averages them (an aperture the size of the uv spacing);
@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera
-from render.slab import LightSlab, SlabGeometry, sheared_camera
-from render.slab_io import create_slab_arrays, write_slab_index
+from render.lightfield import LightSlab, SlabGeometry, sheared_camera
+from render.lightfield import create_slab_arrays, write_slab_index
 
 __all__ = ["DirectConfig", "RenderFn", "RowsFn", "uv_subsamples", "renders_per_uv", "acquire_row", "acquire_direct"]
 

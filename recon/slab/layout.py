@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from render.slab import SlabGeometry
+from render.lightfield import SlabGeometry
 
 __all__ = ["LayoutConfig", "ring_normals", "box_normals", "content_bounds", "fit_slabs", "slab_layout"]
 

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera
-from render.slab import LightSlab, SlabGeometry
-from render.slab_io import create_slab_arrays, write_slab_index
+from render.lightfield import LightSlab, SlabGeometry
+from render.lightfield import create_slab_arrays, write_slab_index
 
 __all__ = ["CapturedView", "RebinConfig", "RebinStats", "point_cloud", "splat_depth", "rebin_slabs"]
 

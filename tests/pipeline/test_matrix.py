@@ -271,8 +271,7 @@ def test_exact_match_metrics_are_written_as_finite_json(tiny_run, tmp_path):
     from recon.nerf.models import make_model
     from recon.nerf.train import evaluate_view, render_view as nerf_render
     from render.camera import Camera, Intrinsics
-    from render.slab import render_view as slab_render
-    from render.slab_io import load_slabs
+    from render.lightfield import load_slabs, render_pinhole as slab_render
 
     r, art = tiny_run
     assert_ok(r)

@@ -1,5 +1,5 @@
 """A tiny synthetic capture for NeRF tests: a coloured cube of fog rendered *exactly* by the
-voxel integrator of render.volume, seen by 8 train and 2 test cameras on a ring (32x24 pixels).
+voxel integrator of recon.nerf.volume, seen by 8 train and 2 test cameras on a ring (32x24 pixels).
 
 The folder has the capture layout the NeRF reads: linear/<view>.exr, cameras.json (splits),
 manifest.json. Building it takes well under a second.
@@ -16,7 +16,7 @@ from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
 from render.image_io import write_exr
 from render.poses import look_at
-from render.volume import VoxelField, render_voxels_exact
+from recon.nerf.volume import VoxelField, render_voxels_exact
 
 SIZE = (32, 24)
 # The fast model shrunk for tests: small grids and batches, occupancy updates from step 30.

@@ -11,8 +11,8 @@ from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, a
                         content_bounds, fit_slabs, rebin_slabs, ring_normals, slab_layout, uv_subsamples)
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
-from render.slab import render_rays, select_slabs, slab_coordinates
-from render.slab_io import load_slabs
+from render.lightfield import render_rays, select_slabs, slab_coordinates
+from render.lightfield import load_slabs
 
 HALF = 0.2
 UP = np.array([0.0, 0.0, 1.0])
@@ -254,7 +254,7 @@ def test_tiles_follow_the_vq_code_layout():
     """tiles_of orders tiles as VQRadiance codes and rays within a tile as its codebook entries:
     one codeword per tile decodes to the array exactly (odd counts included)."""
     from recon.slab.compress import tiles_of
-    from render.slab import VQRadiance
+    from render.lightfield import VQRadiance
 
     r = np.random.default_rng(0).random((3, 4, 5, 7, 3)).astype(np.float32)
     t = tiles_of(r)
@@ -286,7 +286,7 @@ def test_compress_slabs_exact_on_few_distinct_tiles_and_error_accounting():
     frequent tile): a 16-entry codebook codes it exactly, the background by the fixed entry; a
     textured slab's reported RMSE equals the decoded array's, and a larger codebook lowers it."""
     from recon.slab.compress import VQConfig, compress_slabs
-    from render.slab import LightSlab, SlabGeometry
+    from render.lightfield import LightSlab, SlabGeometry
 
     uv = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]])
     g = SlabGeometry(uv, uv * [0.6, 0.6, 1] + [0, 0, 1], (6, 4, 16, 12))

@@ -2,7 +2,7 @@
 the emitting-absorbing slab L_bg exp(-sigma_a d) + Le (1 - exp(-sigma_a d)), a non-absorbing
 medium in an enclosure of constant radiance stays at that radiance for any sigma_s and g, with
 and without next-event estimation), Henyey-Greenstein chi-square, the NeRF quadrature of
-render.volume on the same emission-absorption grid, and named hard cases. Statistical tests:
+recon.nerf.volume on the same emission-absorption grid, and named hard cases. Statistical tests:
 fixed seeds, z-tests at 4.5 sigma (alpha ~ 1e-5 per test) unless stated."""
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from render.pathtracer import RenderSettings, prepare
 from render.poses import look_at
 from render.scene import DirectionalLight, Emissive, Lambertian, Medium, PointLight, Scene, SceneObject
 from render.volpath import render_volpath, trace, volpath_context
-from render.volume import VoxelField, render_voxels_exact, render_voxels_quadrature
+from recon.nerf.volume import VoxelField, render_voxels_exact, render_voxels_quadrature
 
 Z = 4.5
 
@@ -197,7 +197,7 @@ def test_nee_through_absorbing_medium_point_light():
 # ---------------------------------------------------------------- one integral, two code paths
 def test_emission_absorption_grid_matches_nerf_quadrature():
     """An emission-absorption voxel medium (sigma_a = density grid, Le constant) rendered by
-    volpath equals render.volume's exact voxel integral and its NeRF quadrature on the same grid
+    volpath equals recon.nerf.volume's exact voxel integral and its NeRF quadrature on the same grid
     (per ray z-test at 4.5 sigma, Sidak over rays is looser; the quadrature within its O(1/n))."""
     rng = np.random.default_rng(15)
     grid = rng.random((4, 3, 5)) * 3.0

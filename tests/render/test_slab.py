@@ -10,9 +10,9 @@ import pytest
 
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
-from render.slab import (MODES, LightSlab, SlabGeometry, lookup, render_rays, render_view, select_slabs,
+from render.lightfield import (MODES, LightSlab, SlabGeometry, lookup, render_rays, render_pinhole, select_slabs,
                          sheared_camera, slab_coordinates)
-from render.slab_io import create_slab_arrays, load_slabs, save_slabs, write_slab_index
+from render.lightfield import create_slab_arrays, load_slabs, save_slabs, write_slab_index
 
 D = 1.0  # uv -> st distance of the test slab
 
@@ -269,7 +269,7 @@ def test_hard_case_camera_exactly_on_the_uv_plane(mode):
     slab = analytic_slab(g, D, texture_linear)
     centre = g.uv_sample_points()[3, 4]
     cam = Camera(Intrinsics.from_fov(24, 24, 20.0), look_at(centre, centre + [0, 0, 1], [0, -1, 0]), "on_uv")
-    img = render_view([slab], cam, mode)
+    img = render_pinhole([slab], cam, mode)
     assert img.shape == (24, 24, 3) and np.all(np.isfinite(img))
     o, d = cam.pixel_rays()
     h = slab_coordinates(g, o, d)
@@ -322,7 +322,7 @@ def test_slab_arrays_filled_in_place_and_nonfinite_refused(tmp_path):
 
 
 def test_compiled_camera_path_matches_general_ray_lookup():
-    """render_view's compiled per-pixel kernels (render/slab_kernels.py) agree with the numpy
+    """render_pinhole's compiled per-pixel kernels (render/slab_kernels.py) agree with the numpy
     per-ray path (slab_coordinates + lookup, float64) in every mode, on two slabs seen by a
     camera whose view straddles the quads' edges and both slabs (so selection matters)."""
     g = make_geometry((8, 8, 32, 32))
@@ -343,7 +343,7 @@ def test_compiled_camera_path_matches_general_ray_lookup():
     assert {0, 1} <= set(best.tolist())
     for mode in MODES:
         for threads in (1, 3):
-            a = render_view([slab, other], cam, mode, background=(0.2, 0.3, 0.4), threads=threads).reshape(-1, 3)
+            a = render_pinhole([slab, other], cam, mode, background=(0.2, 0.3, 0.4), threads=threads).reshape(-1, 3)
             b = render_rays([slab, other], o, d, mode=mode, background=(0.2, 0.3, 0.4))
             np.testing.assert_allclose(a, b, atol=1e-5)
 
@@ -355,7 +355,7 @@ def lossless_vq(radiance: np.ndarray):
     """Codes and codebook with one codeword per tile, built from the documented layout:
     ray (iv, iu, it, is) = codebook[codes[iv // 2, iu // 2, it // 2, is // 2], iv % 2, iu % 2, it % 2, is % 2]
     (odd counts: the missing rays of an edge tile are left at -1, never looked up)."""
-    from render.slab import VQRadiance
+    from render.lightfield import VQRadiance
 
     nv, nu, nt, ns, _ = radiance.shape
     T = [(n + 1) // 2 for n in (nv, nu, nt, ns)]
@@ -379,11 +379,11 @@ def test_vq_slab_decodes_and_renders_like_the_array():
     cam = Camera(Intrinsics(40, 30, 30.0, 30.0, 17.0, 16.0), look_at([0.1, 0.0, -0.5], [0.0, 0.05, 1.0], [0, -1, 0]), "c")
     for mode in MODES:
         np.testing.assert_array_equal(lookup(vq, h, mode), lookup(plain, h, mode))
-        np.testing.assert_allclose(render_view([vq], cam, mode), render_view([plain], cam, mode), atol=1e-7)
+        np.testing.assert_allclose(render_pinhole([vq], cam, mode), render_pinhole([plain], cam, mode), atol=1e-7)
 
 
 def test_vq_radiance_rejects_bad_codes():
-    from render.slab import VQRadiance
+    from render.lightfield import VQRadiance
 
     book = np.zeros((4, 2, 2, 2, 2, 3), np.float32)
     with pytest.raises(ValueError, match="codes"):
@@ -396,7 +396,7 @@ def test_vq_radiance_rejects_bad_codes():
 
 def test_vq_slab_set_round_trip(tmp_path):
     """Codes LZMA-compressed, one float16 codebook shared by two slabs; non-float16 codebooks refused."""
-    from render.slab_io import slab_file_bytes
+    from render.lightfield import slab_file_bytes
 
     g1, g2 = make_geometry((2, 2, 8, 6), "a"), make_geometry((4, 2, 4, 4), "b", z0=0.5)
     r1 = np.round(analytic_slab(g1, 0.7, texture_linear).radiance * 64) / 64
@@ -433,10 +433,10 @@ def test_hard_case_cameras_along_the_planes_and_beyond_st_compiled_path(mode):
     along = Camera(Intrinsics(33, 9, 3.1, 3.1, 16.5, 4.5), look_at([0, 0, 0], [1, 0, 0], [0, -1, 0]), "along")
     beyond = Camera(Intrinsics(16, 16, 12.0, 12.0, 8.0, 8.0), look_at([0, 0, 1.5], [0, 0, 0], [0, -1, 0]), "beyond")
     for cam in (along, beyond):
-        img = render_view([slab], cam, mode, background=bg)
+        img = render_pinhole([slab], cam, mode, background=bg)
         assert np.all(np.isfinite(img))
         np.testing.assert_allclose(img.reshape(-1, 3), render_rays([slab], *cam.pixel_rays(), mode=mode, background=bg),
                                    atol=1e-5)
     h = slab_coordinates(g, *along.pixel_rays())
     assert 0 < h.valid.sum() and not h.valid.reshape(9, 33)[:, 16].any()  # the parallel column misses
-    np.testing.assert_array_equal(render_view([slab], beyond, mode, background=bg), np.broadcast_to(np.float32(bg), (16, 16, 3)))
+    np.testing.assert_array_equal(render_pinhole([slab], beyond, mode, background=bg), np.broadcast_to(np.float32(bg), (16, 16, 3)))

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from render.volume import (TAU_MAX, VoxelField, alpha_from_tau, composite, composite_constant,
+from recon.nerf.volume import (TAU_MAX, VoxelField, alpha_from_tau, composite, composite_constant,
                            exclusive_transmittance, ray_aabb, render_voxels_exact, render_voxels_quadrature,
                            voxel_segments)
 

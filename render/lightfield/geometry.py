@@ -1,9 +1,9 @@
-"""Two-plane light slabs (Levoy and Hanrahan 1996): geometry, ray lookup, interpolation.
+"""Two-plane light slabs (Levoy and Hanrahan 1996): geometry and the ray-to-slab mapping.
 
 A light slab stores the radiance of the oriented lines that cross two parallel rectangles, the
 *uv* quad (where the eyes are) and the *st* quad (the focal plane, through the object). Pure
-functions over arrays: nothing here knows files or stages (:mod:`render.slab_io` reads and
-writes slab sets).
+functions over arrays: nothing here knows files or stages (:mod:`render.lightfield.storage`
+reads and writes slab sets; :mod:`render.lightfield.rendering` looks rays up and interpolates).
 
 Conventions (tested in ``tests/render/test_slab.py``):
 
@@ -22,38 +22,20 @@ Conventions (tested in ``tests/render/test_slab.py``):
   float32: the distance along ``forward`` from the uv plane to the first surface on that ray
   (the sheared camera's z-depth), 0 where the ray hits nothing.
 
-Interpolation modes (the paper's Fig. 13): ``nearest``; ``uv`` (bilinear in u, v, nearest in
-s, t); ``st`` (nearest in u, v, bilinear in s, t); ``quadrilinear``; and ``depth``, the depth-
-corrected variant of the Lumigraph (Gortler et al. 1996) and of dynamically reparameterized
-light fields (Isaksen et al. 2000): the eye ray is intersected with a focal surface (the slab's
-depth where it has one, else the focal plane ``focal_depth``), and each of the four nearest uv
-samples is looked up bilinearly where *its* ray through that focal point crosses st.
-Coordinates outside a quad mean the ray misses the slab; inside, interpolation clamps to the
-edge samples. The focal surface is the depth of the *nearest* sample: at a silhouette it may
-belong to the background (0: the focal plane is used) or to the other surface.
-
-Two implementations of the same math: :func:`render_rays` / :func:`lookup` for arbitrary rays
-(numpy, float64 coordinates, all taps of a ray gathered at once), and :func:`render_view` for
-pinhole cameras (the compiled kernels of :mod:`render.slab_kernels`, one pass per pixel, bands
-of rows on several threads); tests check one against the other.
-
 Compression: ``radiance`` may be a :class:`VQRadiance` (2 x 2 x 2 x 2 ray tiles coded against a
-codebook, Levoy and Hanrahan's section 4); both paths look rays up through the codebook, so a
+codebook, Levoy and Hanrahan's section 4); the renderers look rays up through the codebook, so a
 compressed slab renders without being decoded.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import Camera, Intrinsics
+from ..camera import Camera, Intrinsics
 
-__all__ = ["MODES", "SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "slab_coordinates", "lookup",
-           "select_slabs", "render_rays", "render_view", "sheared_camera"]
-
-MODES = ("nearest", "uv", "st", "quadrilinear", "depth")
+__all__ = ["SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "MIN_COS", "check_rays", "slab_coordinates",
+           "sheared_camera"]
 
 #: rays whose direction makes |cos| below this with a slab's normal are treated as parallel
 #: to its planes (the plane-intersection denominator would be near zero): they miss the slab
@@ -267,7 +249,9 @@ class SlabHits:
     cos: np.ndarray
 
 
-def _check_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
+def check_rays(origins, dirs) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) float64 origins and directions from any (..., 3) arrays; ValueError when their shapes
+    differ or a value is not finite."""
     o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
     if o.shape != d.shape:
@@ -284,7 +268,7 @@ def slab_coordinates(geom: SlabGeometry, origins: np.ndarray, dirs: np.ndarray) 
     parallel to the planes (|cos| < :data:`MIN_COS`), travelling against ``forward``, starting
     beyond the st plane, or crossing outside either quad are invalid; every output is finite.
     """
-    o, d = _check_rays(origins, dirs)
+    o, d = check_rays(origins, dirs)
     R = geom.rotation
     op = (o - geom.uv_corners[0]) @ R.T
     dp = d @ R.T
@@ -304,236 +288,6 @@ def slab_coordinates(geom: SlabGeometry, origins: np.ndarray, dirs: np.ndarray) 
     ok &= np.all((coords >= 0.0) & (coords <= 1.0), axis=1)
     coords = np.where(ok[:, None], coords, 0.5)
     return SlabHits(np.where(ok[:, None], uv, 0.0), np.where(ok[:, None], st, 0.0), coords, ok, np.where(ok, cos, 0.0))
-
-
-def _axis(c: np.ndarray, n: int, linear: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """Taps along one axis of ``n`` samples at continuous sample coordinates ``c`` (...) (sample i
-    at c = i, i.e. c = x n - 0.5 for a parameter x in [0, 1]), edge-clamped.
-
-    Returns ``(index (..., K) intp, weight (..., K) float32 or None)``: K = 1 nearest tap (weight
-    None = 1), or K = 2 linear taps."""
-    c = np.clip(c, 0.0, n - 1.0)
-    if not linear or n == 1:
-        return np.floor(c + 0.5).astype(np.intp)[..., None], None
-    f0 = np.minimum(np.floor(c), n - 2.0)
-    f = (c - f0).astype(np.float32)
-    i0 = f0.astype(np.intp)
-    return np.stack([i0, i0 + 1], -1), np.stack([1 - f, f], -1)
-
-
-def _pairs(a: np.ndarray, b: np.ndarray, sa: int, sb: int) -> np.ndarray:
-    """(N, A * B) index parts ``a * sa + b * sb`` of every outer tap ``a`` (N, A) with its inner
-    taps ``b`` (N, A or 1, B)."""
-    return (a[:, :, None] * sa + b * sb).reshape(len(a), -1)
-
-
-def _pair_weights(wa: np.ndarray | None, wb: np.ndarray | None, n: int) -> np.ndarray | None:
-    if wa is None and wb is None:
-        return None
-    w = wb if wa is None else (wa[:, :, None] if wb is None else wa[:, :, None] * wb)
-    return w.reshape(n, -1)
-
-
-def _fetch(radiance, iv, it, iu, is_) -> np.ndarray:
-    """(N, K, 3) float32 samples of every tap combination: rows (v, t) taps ``iv`` (N, A),
-    ``it`` (N, A|1, B) by columns (u, s) taps ``iu`` (N, C), ``is_`` (N, C|1, E); K = A B C E."""
-    n = len(iv)
-    if isinstance(radiance, VQRadiance):
-        tv, tu, tt, ts = radiance.codes.shape
-        tile = (_pairs(iv >> 1, it >> 1, tu * tt * ts, ts)[:, :, None]
-                + _pairs(iu >> 1, is_ >> 1, tt * ts, 1)[:, None, :]).reshape(n, -1)
-        off = (_pairs(iv & 1, it & 1, 8, 2)[:, :, None] + _pairs(iu & 1, is_ & 1, 4, 1)[:, None, :]).reshape(n, -1)
-        code = radiance.codes.reshape(-1).take(tile).astype(np.intp)
-        return radiance.codebook.reshape(-1, 3).take(code * 16 + off, axis=0)
-    nv, nu, nt, ns = radiance.shape[:4]
-    idx = (_pairs(iv, it, nu * nt * ns, ns)[:, :, None] + _pairs(iu, is_, nt * ns, 1)[:, None, :]).reshape(n, -1)
-    return np.asarray(radiance).reshape(-1, 3).take(idx, axis=0)
-
-
-def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
-    """(N, 3) float32 radiance at slab parameters u, v, s, t (N,) in [0, 1] (float32 or float64).
-
-    Every mode gathers the product of per-axis taps in one indexing operation. In ``depth`` mode
-    the s (t) taps depend on the u (v) tap: the ray of uv sample U through the focal point F on
-    the eye ray crosses st at P = U + (D / zeta) (F - U); in sample units that is
-    c_s' = c_s + (D / zeta - 1) (W_u n_s / (W_s n_u)) (c_u - i_u) with c_x = x n_x - 0.5."""
-    g = slab.geometry
-    nu, nv, ns, nt = g.shape
-    n = len(u)
-    if n == 0:
-        return np.zeros((0, 3), np.float32)
-    cu, cv, cs, ct = u * nu - 0.5, v * nv - 0.5, s * ns - 0.5, t * nt - 0.5
-    lin_uv = mode in ("uv", "quadrilinear", "depth")
-    lin_st = mode in ("st", "quadrilinear", "depth")
-    iu, wu = _axis(cu, nu, lin_uv)
-    iv, wv = _axis(cv, nv, lin_uv)
-    if mode == "depth":
-        D = g.distance
-        zeta = np.full(n, D if slab.focal_depth is None else slab.focal_depth, np.float32)
-        if slab.depth is not None:
-            near = [_axis(c, m, False)[0][:, 0] for c, m in ((cv, nv), (cu, nu), (ct, nt), (cs, ns))]
-            z = np.asarray(slab.depth).reshape(-1).take(((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3])
-            zeta = np.where(z > 1e-6 * D, z, zeta)  # 0 = no surface: keep the focal plane
-        shift = D / zeta - 1.0
-        ks = g.uv_size[0] * ns / (g.st_size[0] * nu)
-        kt = g.uv_size[1] * nt / (g.st_size[1] * nv)
-        is_, ws = _axis(cs[:, None] + (shift * ks)[:, None] * (cu[:, None] - iu), ns, True)  # (N, 2, 2)
-        it, wt = _axis(ct[:, None] + (shift * kt)[:, None] * (cv[:, None] - iv), nt, True)
-    else:
-        is_, ws = _axis(cs, ns, lin_st)
-        it, wt = _axis(ct, nt, lin_st)
-        is_, it = is_[:, None], it[:, None]
-        ws, wt = (None if w is None else w[:, None] for w in (ws, wt))
-    vals = _fetch(slab.radiance, iv, it, iu, is_)
-    w_row, w_col = _pair_weights(wv, wt, n), _pair_weights(wu, ws, n)
-    if w_row is None and w_col is None:
-        return vals[:, 0]
-    if w_row is None:
-        w = w_col
-    elif w_col is None:
-        w = w_row
-    else:
-        w = (w_row[:, :, None] * w_col[:, None, :]).reshape(n, -1)
-    return np.einsum("nk,nkc->nc", w, vals)
-
-
-def lookup(slab: LightSlab, hits_or_coords, mode: str = "quadrilinear") -> np.ndarray:
-    """Interpolate a slab at valid ray coordinates.
-
-    hits_or_coords: :class:`SlabHits` restricted to valid rays, or (N, 4) (u, v, s, t) in [0, 1]
-    (float64 or float32). Returns (N, 3) float32 radiance.
-    """
-    if mode not in MODES:
-        raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
-    coords = hits_or_coords.coords if isinstance(hits_or_coords, SlabHits) else hits_or_coords
-    coords = np.asarray(coords)
-    if coords.dtype not in (np.float32, np.float64):
-        coords = coords.astype(np.float64)
-    coords = coords.reshape(-1, 4)
-    return _interpolate(slab, *coords.T, mode).astype(np.float32, copy=False)
-
-
-def select_slabs(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarray
-                 ) -> tuple[np.ndarray, list[SlabHits]]:
-    """For each ray, the slab it crosses at the steepest angle (largest cos with ``forward``).
-
-    Returns ``(index (N,) int64, -1 where no slab is crossed; hits per slab)``.
-    """
-    o, d = _check_rays(origins, dirs)
-    best = np.full(len(o), -1, dtype=np.int64)
-    score = np.zeros(len(o))
-    all_hits = []
-    for k, slab in enumerate(slabs):
-        h = slab_coordinates(slab.geometry, o, d)
-        better = h.valid & (h.cos > score)
-        best[better], score[better] = k, h.cos[better]
-        all_hits.append(h)
-    return best, all_hits
-
-
-def _coords_of(h: SlabHits, sel: np.ndarray) -> list[np.ndarray]:
-    """(u, v, s, t) arrays of the rays ``sel``."""
-    return list(h.coords[sel].T)
-
-
-def render_rays(slabs: Sequence[LightSlab], origins: np.ndarray, dirs: np.ndarray, mode: str = "quadrilinear",
-                background=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """Radiance (N, 3) float32 of eye rays looked up in a slab set; rays missing every slab get
-    ``background`` (3,) linear RGB. origins, dirs: (N, 3) world rays (eye -> scene)."""
-    if mode not in MODES:
-        raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
-    o, d = _check_rays(origins, dirs)
-    return _render_hits(slabs, [slab_coordinates(s.geometry, o, d) for s in slabs], mode, background)
-
-
-def _render_hits(slabs: Sequence[LightSlab], hits: list[SlabHits], mode: str, background) -> np.ndarray:
-    bg = np.asarray(background, dtype=np.float32).reshape(-1)
-    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-        raise ValueError(f"background must be three finite numbers, got {background!r}")
-    n = len(hits[0].valid) if hits else 0
-    best = np.full(n, -1, dtype=np.int64)
-    score = np.zeros(n, dtype=np.float32)
-    for k, h in enumerate(hits):
-        better = h.valid & (h.cos > score)
-        best[better], score[better] = k, h.cos[better]
-    out = np.empty((n, 3), np.float32)
-    out[:] = bg
-    for k, slab in enumerate(slabs):
-        sel = np.flatnonzero(best == k)
-        if len(sel):
-            out[sel] = _interpolate(slab, *_coords_of(hits[k], sel), mode)
-    return out
-
-
-def _kernel_params(slab: LightSlab, pix_to_world: np.ndarray, eye: np.ndarray) -> np.ndarray:
-    """(N_PARAMS,) float64 parameters of :mod:`render.slab_kernels` for a slab seen by a pinhole
-    camera with pixel (x, y, 1) -> world direction map ``pix_to_world`` = R_cam K^-1 (3, 3) and
-    centre ``eye`` (3,): the slab-frame direction map A = R_slab R_cam K^-1, the eye in the slab
-    frame, the slab's sizes and its default focal distance."""
-    g = slab.geometry
-    A = g.rotation @ pix_to_world
-    eye = g.rotation @ (eye - g.uv_corners[0])
-    focal = g.distance if slab.focal_depth is None else float(slab.focal_depth)
-    return np.concatenate([A.reshape(-1), eye, [g.distance], g.uv_size, g.st_size, g.st_offset, [focal]])
-
-
-def _kernel_arrays(slab: LightSlab) -> tuple:
-    """(dims, rad, depth, codes, codebook, tdims) of a slab as the kernels take them (views, no copies)."""
-    nu, nv, ns, nt = slab.geometry.shape
-    dims = np.array([nu, nv, ns, nt], np.int64)
-    depth = np.zeros(0, np.float32) if slab.depth is None else np.asarray(slab.depth).reshape(-1)
-    r = slab.radiance
-    if isinstance(r, VQRadiance):
-        return (dims, np.zeros((0, 3), np.float32), depth, r.codes.reshape(-1), r.codebook.reshape(-1, 3),
-                np.array(r.codes.shape, np.int64))
-    return (dims, np.asarray(r).reshape(-1, 3), depth, np.zeros(0, np.uint16), np.zeros((0, 3), np.float32),
-            np.zeros(4, np.int64))
-
-
-def render_view(slabs: Sequence[LightSlab], camera: Camera, mode: str = "quadrilinear",
-                background=(0.0, 0.0, 0.0), threads: int = 2) -> np.ndarray:
-    """(H, W, 3) float32 linear image of ``camera`` rendered from a slab set (every pixel centre);
-    each pixel's ray is looked up in the slab it crosses most steeply, else gets ``background``.
-
-    Pinhole cameras render through the compiled kernels of :mod:`render.slab_kernels` in
-    ``threads`` bands of rows at once (the kernels release the GIL); cameras with lens distortion
-    take the general per-ray path (:func:`render_rays`)."""
-    if mode not in MODES:
-        raise ValueError(f"unknown interpolation mode {mode!r}; known: {list(MODES)}")
-    bg = np.asarray(background, dtype=np.float32).reshape(-1)
-    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-        raise ValueError(f"background must be three finite numbers, got {background!r}")
-    k = camera.intrinsics
-    if k.has_distortion or not slabs:
-        return render_rays(slabs, *camera.pixel_rays(), mode=mode, background=bg).reshape(k.height, k.width, 3)
-    from . import slab_kernels as sk
-
-    pix_to_world = camera.cam_to_world[:3, :3] @ np.linalg.inv(k.K)
-    params = np.stack([_kernel_params(s, pix_to_world, camera.center) for s in slabs])
-    arrays = [_kernel_arrays(s) for s in slabs]
-    out = np.empty((k.height * k.width, 3), np.float32)
-    out[:] = bg
-    mode_id = sk.MODE_IDS[mode]
-
-    def band(rows: tuple[int, int]) -> None:
-        r0, r1 = rows
-        best = np.empty((r1 - r0) * k.width, np.int64)
-        sk.select_band(params, r0, r1, k.width, best)
-        part = out[r0 * k.width:r1 * k.width]
-        for i, arr in enumerate(arrays):
-            sk.interpolate_band(params, *arr[:6], mode_id, best, i, r0, r1, k.width, part)
-
-    threads = max(1, min(int(threads), k.height))
-    edges = np.linspace(0, k.height, threads + 1).astype(int)
-    bands = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
-    if threads == 1:
-        band(bands[0])
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(band, bands))
-    return out.reshape(k.height, k.width, 3)
 
 
 def sheared_camera(geom: SlabGeometry, u: float, v: float, st_supersample: int = 1, name: str | None = None) -> Camera:

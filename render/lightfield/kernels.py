@@ -1,6 +1,6 @@
 """Compiled (numba) slab rendering of a pinhole camera: one pass over the pixels per slab.
 
-:func:`render.slab.render_view` hands each band of image rows to two kernels: :func:`select_band`
+:func:`render.lightfield.rendering.render_pinhole` hands each band of image rows to two kernels: :func:`select_band`
 intersects every pixel-centre ray with every slab and keeps the slab it crosses most steeply
 (the largest cosine with the slab's ``forward``; -1 where no slab is crossed), then
 :func:`interpolate_band`, once per slab, re-intersects that slab's pixels and interpolates its
@@ -8,12 +8,12 @@ samples (plain float32 arrays, or vector-quantized tiles through the codebook). 
 stored per ray between the two, and the kernels release the GIL, so two bands render on two
 cores at once.
 
-The math is that of the numpy reference in :mod:`render.slab` (:func:`render.slab.slab_coordinates`
-and the interpolation of :func:`render.slab.lookup`), which stays the public path for arbitrary
+The math is that of the numpy reference in :mod:`render.lightfield` (:func:`render.lightfield.geometry.slab_coordinates`
+and the interpolation of :func:`render.lightfield.rendering.lookup`), which stays the public path for arbitrary
 rays; ``tests/render/test_slab.py`` checks the two against each other. Precision: float64
 throughout (the numpy path's float64 answers are matched to rounding).
 
-Per-slab parameters, one float64 row (:data:`N_PARAMS`), built by :func:`render.slab._kernel_params`:
+Per-slab parameters, one float64 row (:data:`N_PARAMS`), built by ``render.lightfield.rendering._kernel_params``:
 ``A`` (9, row-major 3x3 = R_slab R_cam K^-1: pixel (x, y, 1) -> ray direction in the slab frame
 (e_s, e_t, forward)), the eye in that frame relative to uv corner 0 (3), the uv -> st distance D,
 the uv size (2), the st size (2), the st offset (2) and the depth mode's default focal distance.
@@ -25,11 +25,12 @@ import math
 import numpy as np
 from numba import njit
 
+from .geometry import MIN_COS  # numba freezes it as a constant
+
 __all__ = ["N_PARAMS", "MODE_IDS", "select_band", "interpolate_band"]
 
 N_PARAMS = 20
 MODE_IDS = {"nearest": 0, "uv": 1, "st": 2, "quadrilinear": 3, "depth": 4}
-_MIN_COS = 1e-6  # render.slab.MIN_COS
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -45,7 +46,7 @@ def _crossing(p, k, x, y):
     if not norm > 0.0:
         return False, 0.0, 0.5, 0.5, 0.5, 0.5
     cos = dz / norm
-    if not (cos > _MIN_COS and p[k, 11] < p[k, 12]):  # parallel or backwards, or the eye beyond st
+    if not (cos > MIN_COS and p[k, 11] < p[k, 12]):  # parallel or backwards, or the eye beyond st
         return False, 0.0, 0.5, 0.5, 0.5, 0.5
     f_uv = -p[k, 11] / dz
     f_st = (p[k, 12] - p[k, 11]) / dz

@@ -4,10 +4,10 @@ A slab set in a folder::
 
     slabs.json                 format, and per slab: geometry (corners, shape), focal_depth,
                                the file names of its arrays, and the array conventions in words
-    <name>.radiance.npy        (Nv, Nu, Nt, Ns, 3) float32 linear RGB (see :mod:`render.slab`)
+    <name>.radiance.npy        (Nv, Nu, Nt, Ns, 3) float32 linear RGB (see :mod:`render.lightfield.geometry`)
     <name>.depth.npy           (Nv, Nu, Nt, Ns) float32 distance from the uv plane, 0 = empty (optional)
 
-or, for a vector-quantized slab (:class:`render.slab.VQRadiance`; ``radiance`` is null and
+or, for a vector-quantized slab (:class:`render.lightfield.geometry.VQRadiance`; ``radiance`` is null and
 ``vq`` names the files)::
 
     <name>.codes.npy.xz        (Tv, Tu, Tt, Ts) uint16 codewords, a .npy stream compressed by LZMA
@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .image_io import atomic_path
-from .slab import LightSlab, SlabGeometry, VQRadiance
+from ..image_io import atomic_path
+from .geometry import LightSlab, SlabGeometry, VQRadiance
 
 __all__ = ["SLABS_JSON", "SLABS_FORMAT", "create_slab_arrays", "write_slab_index", "save_slabs", "load_slabs",
            "slab_file_bytes"]

@@ -23,6 +23,10 @@ float32 and float64; the composited weights lie in [0, 1] and sum to at most 1 p
 
 Conventions: ``t`` is the distance along unit-length ray directions (ray length, *not* z-depth:
 callers convert with the cosine to the optical axis). Shapes are (R, S) for R rays of S samples.
+
+It lives with the NeRF because the NeRF is its only user in the library (the path tracer's media
+are numpy delta tracking, :mod:`render.media`); ``tests/render/test_media.py`` borrows its exact voxel
+integral as a closed form for ``volpath``.
 """
 from __future__ import annotations
 
