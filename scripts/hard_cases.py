@@ -90,6 +90,7 @@ CATALOGUE: tuple[HardCase, ...] = (
     HardCase("render/lightfield/", "cameras along the planes and beyond st (compiled path)",
              "tests/render/test_slab.py::test_hard_case_cameras_along_the_planes_and_beyond_st_compiled_path"),
     HardCase("render/metrics.py", "identical images through every metric", "tests/render/test_metrics.py::test_identical_images_through_every_metric"),
+    HardCase("render/metrics.py", "HDR-ꟻLIP of mostly or entirely black frames", "tests/render/test_metrics.py::test_hard_case_hdr_flip_on_dark_references"),
     # ---- the rasterizer
     HardCase("rig/raster.py", "degenerate triangles", "tests/rig/test_raster_hard_cases.py::test_hard_case_degenerate_triangles"),
     HardCase("rig/raster.py", "camera inside an object", "tests/rig/test_raster_hard_cases.py::test_hard_case_camera_inside_an_object"),

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from render import metrics
-from render.metrics import MSE_FLOOR, PSNR_MAX_DB, mse_to_psnr, psnr, rmse, ssim
+from render.metrics import (MSE_FLOOR, PSNR_MAX_DB, black_image_scores, flip, flip_map, mse_to_psnr, psnr, rmse,
+                            score_images, ssim, to_display)
 
 #: the documented value of every image metric (render.metrics.__all__'s functions of two images)
 #: on identical images
-IDENTICAL = {"psnr": PSNR_MAX_DB, "ssim": 1.0, "rmse": 0.0}
+IDENTICAL = {"psnr": PSNR_MAX_DB, "ssim": 1.0, "rmse": 0.0, "flip": 0.0}
 
 
 def _images():
@@ -26,14 +27,22 @@ def test_identical_images_through_every_metric():
     floored at MSE_FLOOR = 1e-10 of peak^2), ssim 1, rmse 0; and those values are valid JSON
     (allow_nan=False, as stages write metrics.json). A metric added to render.metrics without
     a documented identical-image value here fails the first assertion."""
-    image_metrics = {n for n in metrics.__all__ if callable(getattr(metrics, n)) and n != "mse_to_psnr"}
+    image_metrics = {n for n in metrics.__all__ if callable(getattr(metrics, n))
+                     and n not in ("mse_to_psnr", "to_display", "flip_map", "score_images", "black_image_scores")}
     assert image_metrics == set(IDENTICAL)
     assert PSNR_MAX_DB == 100.0 and 10 * math.log10(1 / MSE_FLOOR) == pytest.approx(PSNR_MAX_DB)
     for label, img in _images().items():
-        for name, expected in IDENTICAL.items():
+        names = [n for n in IDENTICAL if img.ndim == 3 or n != "flip"]  # ꟻLIP takes RGB only
+        for name in names:
             got = getattr(metrics, name)(img, img.copy())
-            assert math.isfinite(got) and got == pytest.approx(expected, abs=1e-6), (label, name, got)
-        json.dumps({name: getattr(metrics, name)(img, img) for name in IDENTICAL}, allow_nan=False)
+            assert math.isfinite(got) and got == pytest.approx(IDENTICAL[name], abs=1e-6), (label, name, got)
+        if img.ndim == 3:
+            assert flip(img, img.copy(), hdr=True) == 0.0, label
+            assert score_images(img, img.copy(), mask=np.ones(img.shape[:2], bool)) == pytest.approx(
+                {**{k + s: PSNR_MAX_DB for k in ("display_psnr", "linear_psnr") for s in ("", "_subject")},
+                 **{"display_ssim" + s: 1.0 for s in ("", "_subject")},
+                 **{k + s: 0.0 for k in ("flip_ldr", "flip_hdr") for s in ("", "_subject")}}), label
+        json.dumps({name: getattr(metrics, name)(img, img) for name in names}, allow_nan=False)
     assert psnr(np.full((4, 4, 3), 2.0), np.full((4, 4, 3), 2.0), max_val=2.0) == PSNR_MAX_DB
 
 
@@ -49,3 +58,89 @@ def test_psnr_follows_its_closed_form_up_to_the_cap():
     from recon.nerf.train import mse_to_psnr as training_psnr
     assert training_psnr is mse_to_psnr
     assert rmse(ref + 0.1, ref) == pytest.approx(0.1) and ssim(ref + 0.1, ref) < 1.0
+
+
+def _display_level(code: int) -> float:
+    """The linear value whose 8-bit sRGB code is exactly ``code``."""
+    from render.color import srgb_to_linear
+    return float(srgb_to_linear(code / 255.0))
+
+
+def test_display_psnr_of_a_constant_code_offset_follows_its_closed_form():
+    """Display PSNR scores 8-bit sRGB codes: two flat images whose codes differ by 10 score
+    20 log10(255 / 10) = 28.13 dB whatever their linear difference (which linear PSNR reports
+    differently: dark codes are close in linear light), and values within half a code of each
+    other score as identical (8-bit quantization)."""
+    ref = np.full((16, 16, 3), _display_level(40))
+    pred = np.full((16, 16, 3), _display_level(50))
+    assert np.allclose(to_display(ref) * 255, 40) and np.allclose(to_display(pred) * 255, 50)
+    got = score_images(pred, ref, with_flip=False)
+    assert got["display_psnr"] == pytest.approx(20 * math.log10(255 / 10), abs=1e-9)
+    assert got["linear_psnr"] == pytest.approx(psnr(pred, ref)) and got["linear_psnr"] > got["display_psnr"] + 5
+    nudged = np.full((16, 16, 3), 0.7 * _display_level(40) + 0.3 * _display_level(41))  # 0.3 codes up
+    assert score_images(nudged, ref, with_flip=False)["display_psnr"] == PSNR_MAX_DB
+
+
+def test_masked_metrics_average_over_the_mask_and_refuse_an_empty_one():
+    """With a mask, PSNR is the closed form over the mask's pixels only (the rest may be anything),
+    and every masked metric refuses an empty mask or one of the wrong shape with ValueError."""
+    ref = np.full((10, 12, 3), 0.5)
+    pred = ref.copy()
+    pred[:, :6] += 0.1  # the mask's half: error 0.1
+    pred[:, 6:] = 0.0  # the other half: wildly wrong, outside the mask
+    mask = np.zeros((10, 12), bool)
+    mask[:, :6] = True
+    assert psnr(pred, ref, mask=mask) == pytest.approx(20.0, abs=1e-9)
+    assert ssim(pred, ref, mask=mask) > ssim(pred, ref)
+    assert flip(pred, ref, mask=mask) < flip(pred, ref)
+    for bad in (np.zeros((10, 12), bool), np.ones((12, 10), bool)):
+        for call in (lambda m: psnr(pred, ref, mask=m), lambda m: ssim(pred, ref, mask=m),
+                     lambda m: flip(pred, ref, mask=m), lambda m: score_images(pred, ref, mask=m)):
+            with pytest.raises(ValueError, match="mask"):
+                call(bad)
+
+
+def test_flip_of_green_against_blue_is_its_maximum_one():
+    """ꟻLIP's normalization (Andersson et al. 2020, eq. 3-4): the colour distance is scaled by that
+    of pure green and pure blue, the largest in its colour space, so flat green against flat blue
+    (no feature error) scores exactly 1; black against white scores below it; error grows with
+    the difference."""
+    green, blue = np.zeros((24, 24, 3)), np.zeros((24, 24, 3))
+    green[..., 1], blue[..., 2] = 1.0, 1.0
+    assert flip(green, blue) == pytest.approx(1.0, abs=1e-6)
+    assert 0.5 < flip(np.zeros((24, 24, 3)), np.ones((24, 24, 3))) < 1.0
+    ref = np.full((24, 24, 3), 0.2)
+    errs = [flip(ref * (1 + d), ref) for d in (0.05, 0.2, 0.8)]
+    assert 0.0 < errs[0] < errs[1] < errs[2]
+    assert flip_map(ref * 1.2, ref).shape == (24, 24)
+
+
+def test_hard_case_hdr_flip_on_dark_references():
+    """Hard case: HDR-ꟻLIP of a frame that is mostly or entirely black. ꟻLIP picks its exposure
+    range from the reference's median luminance: 0 on the turntable's background (stop exposure
+    +24 stops), and on an all-black reference it calls exit() and takes the process with it. The
+    range comes from the lit pixels instead: finite errors in [0, 1], 0 for identical black images,
+    and a larger error for a larger difference."""
+    ref = np.zeros((32, 32, 3))
+    ref[8:20, 8:20] = 0.03
+    small, large = ref * 1.1, ref * 2.0
+    e_small, e_large = flip(small, ref, hdr=True), flip(large, ref, hdr=True)
+    assert 0.0 < e_small < e_large <= 1.0
+    black = np.zeros((32, 32, 3))
+    assert flip(black, black, hdr=True) == 0.0
+    assert 0.0 < flip(ref, black, hdr=True) <= 1.0  # black reference, lit test image: no exit()
+
+
+def test_black_image_scores_are_the_scores_of_black():
+    """The all-black image's figures are score_images of zeros, and a render close to the
+    reference beats them on every figure (higher PSNR/SSIM, lower ꟻLIP)."""
+    rng = np.random.default_rng(3)
+    ref = np.zeros((24, 32, 3))
+    ref[6:18, 8:24] = rng.uniform(0.05, 0.4, (12, 16, 3))
+    mask = ref.sum(-1) > 0
+    black = black_image_scores(ref, mask)
+    assert black == score_images(np.zeros_like(ref), ref, mask)
+    good = score_images(ref * 1.02, ref, mask)
+    for k in black:
+        better = good[k] < black[k] if k.startswith("flip") else good[k] > black[k]
+        assert better, (k, good[k], black[k])
