@@ -21,7 +21,15 @@ from .color import to_srgb8
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
-__all__ = ["atomic_path", "write_exr", "read_exr", "exr_size", "write_png", "read_png", "png_size", "write_preview"]
+__all__ = ["atomic_path", "write_exr", "write_depth_exr", "read_exr", "exr_size", "write_png", "read_png", "png_size",
+           "write_preview", "DEPTH_CHANNEL", "SINGLE_CHANNELS"]
+
+#: the channel a depth image is written in: OpenEXR's standard name for depth (Blender, Nuke, pbrt and
+#: the depth tools look for it); ``Y`` means luminance
+DEPTH_CHANNEL = "Z"
+#: single-channel names the reader accepts, in order of preference: ``Z`` (depth, written since issue
+#: 18), ``Y`` (luminance: every other single-channel image, and depth written before issue 18)
+SINGLE_CHANNELS = ("Z", "Y")
 
 #: one native-output redirection at a time: file descriptors are process-wide
 _NATIVE_OUTPUT_LOCK = threading.Lock()
@@ -48,14 +56,18 @@ def _check_finite(image: np.ndarray, path) -> None:
         raise ValueError(f"{path}: refusing to write non-finite values")
 
 
-def write_exr(path, image: np.ndarray) -> None:
-    """Write (H, W), (H, W, 1) or (H, W, 3) float data as a float32 OpenEXR (channels Y or RGB)."""
+def write_exr(path, image: np.ndarray, channel: str = "Y") -> None:
+    """Write (H, W), (H, W, 1) or (H, W, 3) float data as a float32 OpenEXR: RGB for three
+    channels, else the one channel named ``channel`` (``Y``, luminance, by default; depth goes
+    through :func:`write_depth_exr`, channel ``Z``)."""
+    if channel not in SINGLE_CHANNELS:
+        raise ValueError(f"write_exr: single channel must be one of {SINGLE_CHANNELS}, got {channel!r}")
     a = np.asarray(image, dtype=np.float32)
     _check_finite(a, path)
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[..., 0]
     if a.ndim == 2:
-        channels = {"Y": np.ascontiguousarray(a)}
+        channels = {channel: np.ascontiguousarray(a)}
     elif a.ndim == 3 and a.shape[2] == 3:
         channels = {"RGB": np.ascontiguousarray(a)}
     else:
@@ -64,6 +76,12 @@ def write_exr(path, image: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         with OpenEXR.File(header, channels) as f:
             f.write(str(tmp))
+
+
+def write_depth_exr(path, depth: np.ndarray) -> None:
+    """Write a (H, W) float z-depth image (metres along the optical axis, 0 where nothing was hit)
+    as a float32 OpenEXR in channel ``Z`` (:data:`DEPTH_CHANNEL`)."""
+    write_exr(path, depth, channel=DEPTH_CHANNEL)
 
 
 @contextmanager
@@ -138,18 +156,20 @@ def _exr_pixels(f) -> np.ndarray:
     ch = f.channels()
     if "RGB" in ch:
         return np.asarray(ch["RGB"].pixels, dtype=np.float32)
-    if "Y" in ch:
-        return np.asarray(ch["Y"].pixels, dtype=np.float32)
+    for name in SINGLE_CHANNELS:
+        if name in ch:
+            return np.asarray(ch[name].pixels, dtype=np.float32)
     if all(c in ch for c in "RGB"):
         return np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-    raise ValueError(f"no RGB or Y channels (has {sorted(ch)})")
+    raise ValueError(f"no RGB, Z or Y channels (has {sorted(ch)})")
 
 
 def read_exr(path) -> np.ndarray:
     """Read an OpenEXR written by :func:`write_exr`: (H, W, 3) or (H, W) float32.
 
-    FileNotFoundError when absent; ValueError, one line naming the file, when the file is not a
-    readable OpenEXR image (truncated, corrupt, no RGB or Y channels). Nothing is printed: what
+    Single-channel images are read from ``Z`` (depth) or ``Y`` (luminance; depth written before
+    issue 18 used it). FileNotFoundError when absent; ValueError, one line naming the file, when
+    the file is not a readable OpenEXR image (truncated, corrupt, no RGB, Z or Y channels). Nothing is printed: what
     OpenEXR's native core prints about a corrupt file goes into that line instead."""
     return _read_openexr(path, _exr_pixels)
 

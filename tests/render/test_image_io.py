@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from render.image_io import read_exr, read_png, write_exr, write_preview
+import OpenEXR
+
+from render.image_io import read_exr, read_png, write_depth_exr, write_exr, write_preview
 from render.metrics import psnr, rmse, ssim
 
 
@@ -17,6 +19,23 @@ def test_exr_round_trip_is_bit_exact_for_rgb_and_depth(tmp_path):
     write_exr(tmp_path / "depth.exr", depth[..., None])
     assert np.array_equal(read_exr(tmp_path / "rgb.exr"), rgb)
     assert np.array_equal(read_exr(tmp_path / "depth.exr"), depth)
+
+
+def test_depth_is_written_in_channel_z_and_the_old_y_is_still_read(tmp_path):
+    """Depth tools look for OpenEXR's depth channel ``Z`` (``Y`` is luminance): depth is written there;
+    captures written before (depth in ``Y``) still read back, bit-exactly, through the same reader."""
+    depth = np.random.default_rng(1).random((6, 9)).astype(np.float32) * 3.0
+    write_depth_exr(tmp_path / "new.exr", depth)
+    with OpenEXR.File(str(tmp_path / "new.exr")) as f:
+        assert sorted(f.channels()) == ["Z"]
+        assert np.array_equal(f.channels()["Z"].pixels, depth)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {"Y": depth}) as f:  # an old capture's depth, written as before
+        f.write(str(tmp_path / "old.exr"))
+    assert np.array_equal(read_exr(tmp_path / "new.exr"), depth)
+    assert np.array_equal(read_exr(tmp_path / "old.exr"), depth)
+    with pytest.raises(ValueError, match="single channel"):
+        write_exr(tmp_path / "x.exr", depth, channel="D")
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
