@@ -3,7 +3,9 @@
 Our poses are camera-to-world 4x4 float64 in OpenCV axes (x right, y down, z forward).
 OpenGL / pyrender / nerfstudio use x right, y up, z backward: the two differ by a flip of the
 camera's y and z axes (right-multiplying by diag(1, -1, -1, 1)). COLMAP stores world-to-camera
-in OpenCV axes as a scalar-first unit quaternion plus translation.
+(``cam_from_world``) in OpenCV axes, as a scalar-first unit quaternion plus translation in its
+text files. Rotations and rigid transforms to and from COLMAP's go through pycolmap
+(``Rotation3d``, ``Rigid3d``), imported on first use (it takes 0.3 s to import).
 """
 from __future__ import annotations
 
@@ -11,7 +13,8 @@ import numpy as np
 
 __all__ = [
     "OPENCV_TO_OPENGL", "opencv_to_opengl", "opengl_to_opencv", "invert_rigid",
-    "rotmat_to_qvec", "qvec_to_rotmat", "look_at", "c2w_to_colmap", "colmap_to_c2w",
+    "rotmat_to_qvec", "qvec_to_rotmat", "look_at", "c2w_to_colmap", "colmap_to_c2w", "c2w_to_rigid3d",
+    "rigid3d_to_c2w",
 ]
 
 OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -37,38 +40,47 @@ def invert_rigid(m: np.ndarray) -> np.ndarray:
 
 
 def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> (4,) scalar-first unit quaternion (w, x, y, z) with w >= 0.
+    """(3, 3) rotation -> (4,) scalar-first unit quaternion (w, x, y, z) with w >= 0, the order of
+    COLMAP's ``images.txt``. The conversion is pycolmap's (``Rotation3d``, Eigen's, which stores
+    x, y, z, w); only the reordering and the sign choice are ours."""
+    import pycolmap
 
-    Uses the eigenvector method (as COLMAP's own script), stable for every rotation.
-    """
-    Rxx, Ryx, Rzx, Rxy, Ryy, Rzy, Rxz, Ryz, Rzz = np.asarray(R, dtype=np.float64).flat
-    K = np.array([
-        [Rxx - Ryy - Rzz, 0, 0, 0],
-        [Ryx + Rxy, Ryy - Rxx - Rzz, 0, 0],
-        [Rzx + Rxz, Rzy + Ryz, Rzz - Rxx - Ryy, 0],
-        [Ryz - Rzy, Rzx - Rxz, Rxy - Ryx, Rxx + Ryy + Rzz]]) / 3.0
-    eigvals, eigvecs = np.linalg.eigh(K)
-    q = eigvecs[[3, 0, 1, 2], np.argmax(eigvals)]
+    x, y, z, w = pycolmap.Rotation3d(np.asarray(R, dtype=np.float64)).quat
+    q = np.array([w, x, y, z])
     return -q if q[0] < 0 else q
 
 
 def qvec_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """(4,) scalar-first quaternion (normalized here) -> (3, 3) float64 rotation."""
+    """(4,) scalar-first quaternion (w, x, y, z; normalized here) -> (3, 3) float64 rotation, via
+    pycolmap's ``Rotation3d``."""
+    import pycolmap
+
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.asarray(pycolmap.Rotation3d(np.array([x, y, z, w])).matrix(), dtype=np.float64)
+
+
+def c2w_to_rigid3d(c2w: np.ndarray):
+    """OpenCV camera-to-world (4, 4) -> pycolmap ``Rigid3d`` cam_from_world (COLMAP's image pose)."""
+    import pycolmap
+
+    return pycolmap.Rigid3d(invert_rigid(np.asarray(c2w, dtype=np.float64))[:3, :])
+
+
+def rigid3d_to_c2w(cam_from_world) -> np.ndarray:
+    """pycolmap ``Rigid3d`` cam_from_world -> OpenCV camera-to-world (4, 4) float64."""
+    w2c = np.eye(4)
+    w2c[:3, :] = np.asarray(cam_from_world.matrix(), dtype=np.float64)
+    return invert_rigid(w2c)
 
 
 def c2w_to_colmap(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV camera-to-world (4, 4) -> COLMAP world-to-camera ``(qvec (4,), tvec (3,))``."""
-    w2c = invert_rigid(np.asarray(c2w, dtype=np.float64))
-    return rotmat_to_qvec(w2c[:3, :3]), w2c[:3, 3].copy()
+    """OpenCV camera-to-world (4, 4) -> COLMAP world-to-camera ``(qvec (4,) w x y z, tvec (3,))``."""
+    rigid = c2w_to_rigid3d(c2w)
+    return rotmat_to_qvec(rigid.rotation.matrix()), np.asarray(rigid.translation, dtype=np.float64).copy()
 
 
 def colmap_to_c2w(qvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    """COLMAP world-to-camera ``(qvec, tvec)`` -> OpenCV camera-to-world (4, 4) float64."""
+    """COLMAP world-to-camera ``(qvec (4,) w x y z, tvec (3,))`` -> OpenCV camera-to-world (4, 4) float64."""
     w2c = np.eye(4)
     w2c[:3, :3] = qvec_to_rotmat(qvec)
     w2c[:3, 3] = tvec
