@@ -11,9 +11,10 @@ never changed by an exporter.
 
 * ``cameras.json`` (ours, lossless): names, train/test split, intrinsics incl. distortion and
   camera-to-world in OpenCV axes, with a ``convention`` block stating all of the above in words.
-* COLMAP text model (``cameras.txt``, ``images.txt``, empty ``points3D.txt``): world-to-camera
-  as a scalar-first quaternion ``QW QX QY QZ`` plus ``TX TY TZ``; COLMAP's principal point uses
-  the same pixel-centre-at-+0.5 convention as ours, so ``cx, cy`` are written unchanged.
+* COLMAP model, text or binary, written and read by pycolmap (``Reconstruction``): world-to-camera
+  (``cam_from_world``; a scalar-first quaternion ``QW QX QY QZ`` plus ``TX TY TZ`` in the text
+  files), optional 3D points with tracks; COLMAP's principal point uses the same
+  pixel-centre-at-+0.5 convention as ours, so ``cx, cy`` are written unchanged.
 * ``transforms.json`` (nerfstudio / instant-ngp): camera-to-world in OpenGL axes (x right, y up,
   z backward), ``fl_x fl_y cx cy w h``, ``k1 k2 p1 p2`` (``k3`` too when non-zero). Nerfstudio's
   ray generation (``nerfstudio/cameras/cameras.py``: ``Cameras.get_image_coords`` defaults to
@@ -29,19 +30,22 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .camera import Camera, Intrinsics
 from .image_io import atomic_path
-from .poses import c2w_to_colmap, colmap_to_c2w, opencv_to_opengl, opengl_to_opencv
+from .poses import c2w_to_rigid3d, opencv_to_opengl, opengl_to_opencv, rigid3d_to_c2w
 
 __all__ = [
     "SPLITS", "CAMERAS_JSON_FORMAT", "MAX_IMAGE_SIDE", "MAX_NAME_BYTES", "view_name_problem",
     "write_cameras_json", "read_cameras_json",
-    "write_colmap_text", "read_colmap_text",
+    "ColmapPoints", "colmap_reconstruction", "write_colmap_model", "write_colmap_text", "read_colmap_model",
+    "read_colmap_text",
     "write_transforms_json", "read_transforms_json",
 ]
 
@@ -289,108 +293,166 @@ def _intrinsics_from_colmap(model: str, w: int, h: int, p: Sequence[float], wher
     return Intrinsics(w, h, fx, fy, cx, cy, (k1, k2, p1, p2, k3))
 
 
-def _fmt(v: float) -> str:
-    return repr(float(v))  # shortest string that round-trips exactly
+@dataclass(frozen=True)
+class ColmapPoints:
+    """3D points and their tracks for a COLMAP model (``points3D``, and the images' ``POINTS2D``).
+
+    xyz: (P, 3) float64 world points; rgb: (P, 3) uint8 colours. One observation per row of
+    obs_point (K,) int point index, obs_image (K,) int index of the observing camera in the
+    cameras given to :func:`write_colmap_model`, obs_xy (K, 2) float64 pixel position in that
+    image (centres at +0.5, COLMAP's convention as ours). A point needs >= 1 observation.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    obs_point: np.ndarray
+    obs_image: np.ndarray
+    obs_xy: np.ndarray
+
+    def check(self, n_images: int) -> None:
+        p = len(self.xyz)
+        k = len(self.obs_point)
+        shapes_ok = (np.shape(self.xyz) == (p, 3) and np.shape(self.rgb) == (p, 3) and np.shape(self.obs_image) == (k,)
+                     and np.shape(self.obs_xy) == (k, 2))
+        if not shapes_ok:
+            raise ValueError("COLMAP points: xyz (P, 3), rgb (P, 3), obs_point (K,), obs_image (K,), obs_xy (K, 2)")
+        if not (np.all(np.isfinite(self.xyz)) and np.all(np.isfinite(self.obs_xy))):
+            raise ValueError("COLMAP points: non-finite coordinates")
+        if k and (self.obs_point.min() < 0 or self.obs_point.max() >= p or self.obs_image.min() < 0
+                  or self.obs_image.max() >= n_images):
+            raise ValueError("COLMAP points: observation refers to a missing point or image")
+        if p and len(np.unique(self.obs_point)) != p:
+            raise ValueError("COLMAP points: every point needs at least one observation")
 
 
-def write_colmap_text(directory, cameras: Sequence[Camera], image_names: Sequence[str]) -> None:
-    """Write a COLMAP text model: ``cameras.txt``, ``images.txt`` and an empty ``points3D.txt``.
+def colmap_reconstruction(cameras: Sequence[Camera], image_names: Sequence[str], points: ColmapPoints | None = None):
+    """Our cameras (and optional 3D points) as a ``pycolmap.Reconstruction`` in our world frame.
 
     cameras: N :class:`Camera` (camera-to-world, OpenCV axes); image_names: N file names exactly
     as COLMAP should see them (relative to its image folder, no whitespace). One COLMAP camera
     per distinct intrinsics (ids 1.. in first-seen order): PINHOLE without distortion, OPENCV
     (fx fy cx cy k1 k2 p1 p2) with distortion and k3 = 0, FULL_OPENCV (k4..k6 = 0) when k3 != 0.
-    Images get ids 1..N in the given order; poses are world-to-camera ``QW QX QY QZ TX TY TZ``.
+    Images get ids 1..N in the given order, each in its own trivial rig and frame; their poses
+    are world-to-camera (``cam_from_world``). Point ids are 1..P in ``points`` order.
     """
+    import pycolmap
+
     cams = _check_cameras(cameras)
     names = _check_file_names(image_names, len(cams), "COLMAP image names")
+    if points is not None:
+        points.check(len(cams))
+    rec = pycolmap.Reconstruction()
     cam_ids: dict[tuple, int] = {}
-    cam_lines, img_lines = [], []
+    keypoints: list[np.ndarray] = [np.zeros((0, 2))] * len(cams)
+    kp_index = np.zeros(0, dtype=np.int64)  # per observation: its row in its image's keypoints
+    if points is not None and len(points.obs_point):
+        order = np.lexsort((np.arange(len(points.obs_image)), points.obs_image))
+        kp_index = np.empty(len(order), dtype=np.int64)
+        starts = np.searchsorted(points.obs_image[order], np.arange(len(cams)))
+        kp_index[order] = np.arange(len(order)) - starts[points.obs_image[order]]
+        keypoints = np.split(np.asarray(points.obs_xy, dtype=np.float64)[order], starts[1:])
     for img_id, (c, name) in enumerate(zip(cams, names), start=1):
         k = c.intrinsics
         model, params = _colmap_camera(k)
         key = (model, k.width, k.height, params)
         if key not in cam_ids:
             cam_ids[key] = len(cam_ids) + 1
-            cam_lines.append(" ".join([str(cam_ids[key]), model, str(k.width), str(k.height)]
-                                      + [_fmt(v) for v in params]))
-        q, t = c2w_to_colmap(_rigid(c.cam_to_world, f"camera {c.name!r}"))
-        img_lines.append(" ".join([str(img_id)] + [_fmt(v) for v in (*q, *t)] + [str(cam_ids[key]), name]))
-        img_lines.append("")  # no 2D points
+            rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=cam_ids[key], model=model, width=k.width,
+                                                            height=k.height, params=list(params)))
+        image = pycolmap.Image(name=name, keypoints=keypoints[img_id - 1], camera_id=cam_ids[key], image_id=img_id)
+        rec.add_image_with_trivial_frame(image, c2w_to_rigid3d(_rigid(c.cam_to_world, f"camera {c.name!r}")))
+    if points is not None and len(points.xyz):
+        by_point = np.argsort(points.obs_point, kind="stable")
+        bounds = np.searchsorted(points.obs_point[by_point], np.arange(len(points.xyz) + 1))
+        image_ids = (points.obs_image + 1).astype(np.int64)
+        # pycolmap adds points one at a time (no batch call): one call per point, its track built in C++
+        for i, (xyz, rgb) in enumerate(zip(np.asarray(points.xyz, np.float64), np.asarray(points.rgb, np.uint8))):
+            rows = by_point[bounds[i]:bounds[i + 1]]
+            track = pycolmap.Track([pycolmap.TrackElement(i_img, i_kp)
+                                    for i_img, i_kp in zip(image_ids[rows].tolist(), kp_index[rows].tolist())])
+            rec.add_point3D(xyz, track, rgb)
+    return rec
+
+
+def write_colmap_model(directory, cameras: Sequence[Camera], image_names: Sequence[str],
+                       points: ColmapPoints | None = None, binary: bool = False) -> None:
+    """Write a COLMAP model through pycolmap (``Reconstruction.write_text`` / ``write_binary``):
+    ``cameras``, ``images``, ``points3D``, ``rigs`` and ``frames`` (``.txt`` or ``.bin``), as
+    COLMAP >= 3.12 and its GUI read them (older COLMAP reads the first three and ignores the rest).
+    See :func:`colmap_reconstruction` for the cameras, images and points. Every file is written
+    complete under a temporary name first, then renamed into ``directory``."""
+    import shutil
+    import tempfile
+
+    rec = colmap_reconstruction(cameras, image_names, points)
     directory = Path(directory)
-    _write_text(directory / "cameras.txt",
-                "# Camera list with one line of data per camera:\n"
-                "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-                f"# Number of cameras: {len(cam_lines)}\n" + "\n".join(cam_lines) + "\n")
-    _write_text(directory / "points3D.txt",
-                "# 3D point list with one line of data per point:\n"
-                "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-                "# Number of points: 0, mean track length: 0\n")
-    _write_text(directory / "images.txt",
-                "# Image list with two lines of data per image:\n"
-                "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n"
-                "#   POINTS2D[] as (X, Y, POINT3D_ID)\n"
-                f"# Number of images: {len(cams)}, mean observations per image: 0\n"
-                + "\n".join(img_lines) + "\n")
+    directory.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".colmap.", suffix=".partial", dir=directory))
+    try:
+        (rec.write_binary if binary else rec.write_text)(str(tmp))
+        for f in sorted(tmp.iterdir()):
+            os.replace(f, directory / f.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _data_lines(path: Path) -> list[tuple[int, str]]:
-    """(line number, text) of a COLMAP text file, comments removed, blank lines kept."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    return [(i + 1, ln.rstrip("\n\r")) for i, ln in enumerate(path.read_text().splitlines())
-            if not ln.startswith("#")]
+def write_colmap_text(directory, cameras: Sequence[Camera], image_names: Sequence[str],
+                      points: ColmapPoints | None = None) -> None:
+    """:func:`write_colmap_model` as text (``cameras.txt``, ``images.txt``, ``points3D.txt``, ...)."""
+    write_colmap_model(directory, cameras, image_names, points, binary=False)
+
+
+def read_colmap_model(directory) -> list[Camera]:
+    """Read a COLMAP model's cameras and images through pycolmap (text or binary, whichever the
+    folder holds; 3D points are ignored).
+
+    Returns one :class:`Camera` per registered image, sorted by image id, named by the image
+    name's stem, with camera-to-world poses in OpenCV axes. Supported camera models:
+    SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV with k4 = k5 = k6 = 0.
+    ValueError (one line naming the folder) on a model pycolmap cannot read or we cannot represent.
+    """
+    import pycolmap
+
+    directory = Path(directory)
+    kind = "bin" if (directory / "cameras.bin").is_file() else "txt"
+    for part in ("cameras", "images"):
+        if not (directory / f"{part}.{kind}").is_file():
+            raise FileNotFoundError(f"{directory / f'{part}.{kind}'}: no such file")
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = max(level, 3)  # its reader logs before raising: our one line says it
+    try:
+        rec = pycolmap.Reconstruction()
+        rec.read(str(directory))
+    except Exception as exc:  # pycolmap raises IndexError, ValueError, RuntimeError ... on malformed models
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ValueError(f"{directory}: unreadable COLMAP model ({reason})") from None
+    finally:
+        pycolmap.logging.minloglevel = level
+    intrinsics = {}
+    for camera_id in sorted(rec.cameras):  # every camera, used or not: a model we cannot represent is refused
+        pc = rec.cameras[camera_id]
+        where = f"{directory}: camera {camera_id}"
+        params = [_finite(v, f"{where}: camera parameter") for v in np.asarray(pc.params, dtype=np.float64)]
+        intrinsics[camera_id] = _intrinsics_from_colmap(pc.model.name, int(pc.width), int(pc.height), params, where)
+    entries = []
+    for image_id in sorted(rec.images):
+        im = rec.images[image_id]
+        where = f"{directory}: image {image_id} ({im.name})"
+        if not im.has_pose:
+            continue
+        k = intrinsics[im.camera_id]
+        c2w = rigid3d_to_c2w(im.cam_from_world())
+        if not np.all(np.isfinite(c2w)):
+            raise ValueError(f"{where}: non-finite pose")
+        entries.append(Camera(_check_intrinsics(k, where), c2w, _check_view_name(_stem(im.name), where)))
+    if not entries:
+        raise ValueError(f"{directory}: no registered images")
+    return entries
 
 
 def read_colmap_text(directory) -> list[Camera]:
-    """Read a COLMAP text model's cameras and images (3D points are ignored).
-
-    Returns one :class:`Camera` per image, sorted by image id, named by the image name's stem,
-    with camera-to-world poses in OpenCV axes. Supported camera models: SIMPLE_PINHOLE,
-    PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV and FULL_OPENCV with k4 = k5 = k6 = 0.
-    """
-    directory = Path(directory)
-    intr: dict[int, Intrinsics] = {}
-    cam_file = directory / "cameras.txt"
-    for no, ln in _data_lines(cam_file):
-        tok = ln.split()
-        if not tok:
-            continue
-        where = f"{cam_file}:{no}"
-        try:
-            cid, model, w, h = int(tok[0]), tok[1], int(tok[2]), int(tok[3])
-            params = [_finite(v, "camera parameter") for v in tok[4:]]
-        except (IndexError, ValueError) as err:
-            raise ValueError(f"{where}: malformed camera line ({err})") from None
-        intr[cid] = _intrinsics_from_colmap(model, w, h, params, where)
-    img_file = directory / "images.txt"
-    lines = _data_lines(img_file)
-    entries = []
-    i = 0
-    while i < len(lines):
-        no, ln = lines[i]
-        tok = ln.split()
-        if not tok:  # tolerate stray blank lines between records
-            i += 1
-            continue
-        where = f"{img_file}:{no}"
-        try:
-            iid = int(tok[0])
-            q = np.array([_finite(v, "quaternion") for v in tok[1:5]])
-            t = np.array([_finite(v, "translation") for v in tok[5:8]])
-            cid, name = int(tok[8]), tok[9]
-        except (IndexError, ValueError) as err:
-            raise ValueError(f"{where}: malformed image line ({err})") from None
-        if q.shape != (4,) or t.shape != (3,) or np.linalg.norm(q) < 1e-12:
-            raise ValueError(f"{where}: malformed pose")
-        if cid not in intr:
-            raise ValueError(f"{where}: image {name!r} refers to unknown camera id {cid}")
-        entries.append((iid, Camera(intr[cid], colmap_to_c2w(q, t), _check_view_name(_stem(name), where))))
-        i += 2  # skip the POINTS2D line
-    if not entries:
-        raise ValueError(f"{img_file}: no images")
-    entries.sort(key=lambda e: e[0])
-    return [c for _, c in entries]
+    """:func:`read_colmap_model` (kept under its old name: the reader takes text or binary)."""
+    return read_colmap_model(directory)
 
 
 # --------------------------------------------------------------------------- transforms.json

@@ -10,8 +10,8 @@ import pytest
 
 from render.camera import Camera, Intrinsics
 from render.camera_io import (
-    read_cameras_json, read_colmap_text, read_transforms_json, write_cameras_json, write_colmap_text,
-    write_transforms_json,
+    ColmapPoints, read_cameras_json, read_colmap_model, read_colmap_text, read_transforms_json, write_cameras_json,
+    write_colmap_model, write_colmap_text, write_transforms_json,
 )
 from render.poses import invert_rigid, look_at
 
@@ -98,15 +98,50 @@ def test_cameras_json_rejects_bad_input(shared_cams, tmp_path):
         read_cameras_json(tmp_path / "missing.json")
 
 
-# --------------------------------------------------------------------------- COLMAP text
+# --------------------------------------------------------------------------- COLMAP (through pycolmap)
+
+COLMAP_FILES = ["cameras", "frames", "images", "points3D", "rigs"]  # COLMAP >= 3.12's model
 
 
+@pytest.mark.parametrize("binary", [False, True], ids=["text", "binary"])
 @pytest.mark.parametrize("which", ["shared_cams", "mixed_cams"])
-def test_colmap_text_round_trip(which, request, tmp_path):
+def test_colmap_round_trip(which, binary, request, tmp_path):
     cams = request.getfixturevalue(which)
-    write_colmap_text(tmp_path, cams, _names(cams))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["cameras.txt", "images.txt", "points3D.txt"]
-    _assert_same_cameras(cams, read_colmap_text(tmp_path))
+    write_colmap_model(tmp_path, cams, _names(cams), binary=binary)
+    ext = "bin" if binary else "txt"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{f}.{ext}" for f in COLMAP_FILES]
+    _assert_same_cameras(cams, read_colmap_model(tmp_path))
+
+
+def _points_seen_by(cams, n=30, seed=3) -> ColmapPoints:
+    """n points near the origin, each observed where it projects in every camera (a full track)."""
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(scale=0.4, size=(n, 3))
+    obs = [(i, c, c_cam.project(xyz[i:i + 1])[0][0]) for i in range(n) for c, c_cam in enumerate(cams)]
+    return ColmapPoints(xyz=xyz, rgb=rng.integers(0, 256, size=(n, 3), dtype=np.uint8),
+                        obs_point=np.array([o[0] for o in obs]), obs_image=np.array([o[1] for o in obs]),
+                        obs_xy=np.array([o[2] for o in obs]))
+
+
+@pytest.mark.parametrize("binary", [False, True], ids=["text", "binary"])
+def test_colmap_points_and_tracks_load_in_pycolmap(binary, mixed_cams, tmp_path):
+    """COLMAP's own reader gets every point, colour and track, and its own projection of each point
+    lands on the observation written for it (1e-7 px): the points, tracks and poses agree."""
+    pts = _points_seen_by(mixed_cams)
+    write_colmap_model(tmp_path, mixed_cams, _names(mixed_cams), pts, binary=binary)
+    rec = pycolmap.Reconstruction(str(tmp_path))
+    assert rec.num_points3D() == len(pts.xyz) and rec.num_reg_images() == len(mixed_cams)
+    for pid, point in rec.points3D.items():
+        i = pid - 1  # ids 1..P in order
+        np.testing.assert_array_equal(point.xyz, pts.xyz[i])
+        np.testing.assert_array_equal(point.color, pts.rgb[i])
+        assert point.track.length() == len(mixed_cams)
+        for el in point.track.elements:
+            im = rec.images[el.image_id]
+            xy = np.asarray(im.points2D[el.point2D_idx].xy)
+            assert im.points2D[el.point2D_idx].point3D_id == pid
+            np.testing.assert_allclose(np.asarray(im.project_point(point.xyz)).ravel(), xy, atol=1e-7)
+    assert rec.compute_mean_reprojection_error() == pytest.approx(0.0, abs=1e-7)
 
 
 def test_colmap_one_camera_per_distinct_intrinsics_and_model_choice(mixed_cams, tmp_path):
@@ -178,7 +213,7 @@ def test_colmap_reader_models_and_errors(tmp_path):
     assert b.intrinsics.dist == (0.01, 0.0, 0.0, 0.0, 0.0)
     np.testing.assert_allclose(b.center, [0, 0, -1])  # t = (0, 0, 1), R = I  ->  C = -t
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 7 a.png\n\n")
-    with pytest.raises(ValueError, match="unknown camera id 7"):
+    with pytest.raises(ValueError, match="unreadable COLMAP model .*ID 7"):
         read_colmap_text(tmp_path)
 
 
