@@ -1,4 +1,4 @@
-"""Similarity alignment (Umeyama) and scoring of estimated cameras against ground truth.
+"""Similarity alignment (Umeyama, through pycolmap) and scoring of estimated cameras against ground truth.
 
 Conventions: poses are camera-to-world (4, 4) float64 in OpenCV axes (x right, y down,
 z forward); cameras pair up by ``Camera.name``. A similarity ``(s, R, t)`` maps a point
@@ -40,32 +40,32 @@ class Similarity:
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Similarity:
-    """Least-squares similarity taking ``src`` onto ``dst`` (Umeyama 1991, eqs. 40-42).
+    """Least-squares similarity taking ``src`` onto ``dst`` (Umeyama 1991), computed by pycolmap
+    (``estimate_sim3d``; ``estimate_rigid3d`` when ``with_scale`` is False, scale 1).
 
     src, dst: (N, 3) float64 corresponding points, N >= 3 and not all collinear.
-    Returns the :class:`Similarity` minimising sum |dst - (s R src + t)|^2 (s = 1 when
-    ``with_scale`` is False). Raises ValueError on degenerate input.
+    Returns the :class:`Similarity` minimising sum |dst - (s R src + t)|^2. Raises ValueError on
+    degenerate input (pycolmap returns no estimate for it; the checks here say why).
     """
+    import pycolmap
+
     src, dst = np.asarray(src, dtype=np.float64), np.asarray(dst, dtype=np.float64)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
         raise ValueError(f"umeyama: need two (N, 3) arrays of the same shape, got {src.shape} and {dst.shape}")
     if len(src) < 3 or not (np.all(np.isfinite(src)) and np.all(np.isfinite(dst))):
         raise ValueError("umeyama: need at least 3 finite point pairs")
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    var_s = np.mean(np.sum(xs * xs, axis=1))
-    if var_s < 1e-24:
+    centred = src - src.mean(0)
+    if np.mean(np.sum(centred * centred, axis=1)) < 1e-24:
         raise ValueError("umeyama: source points coincide")
-    cov = xd.T @ xs / len(src)
-    U, D, Vt = np.linalg.svd(cov)
-    if np.linalg.matrix_rank(cov, tol=1e-12 * max(D[0], 1e-300)) < 2:
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if sv[1] <= 1e-12 * sv[0]:
         raise ValueError("umeyama: points are collinear, the rotation is undetermined")
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / var_s) if with_scale else 1.0
-    return Similarity(s, R, mu_d - s * R @ mu_s)
+    est = (pycolmap.estimate_sim3d if with_scale else pycolmap.estimate_rigid3d)(src, dst)
+    if est is None:
+        raise ValueError("umeyama: no similarity fits these points (degenerate configuration)")
+    scale = float(est.scale) if with_scale else 1.0
+    R = np.asarray(est.rotation.matrix(), dtype=np.float64)
+    return Similarity(scale, R, np.asarray(est.translation, dtype=np.float64).copy())
 
 
 def apply_similarity(cameras: Sequence[Camera], sim: Similarity) -> list[Camera]:
