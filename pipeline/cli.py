@@ -236,6 +236,20 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
 
 
 @app.command()
+def export(capture_dir: Path = typer.Argument(..., help="a capture folder"),
+           format: str = typer.Option(..., "--format", "-f", help="nerfstudio | instant-ngp | colmap"),
+           out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../export/<format>)"),
+           quiet: bool = QUIET,
+           overwrite: bool = OVERWRITE):
+    """Write a capture as nerfstudio, instant-ngp or COLMAP (binary model with 3D points) open it."""
+    from .export import run_export
+
+    out = out or capture_dir.parent / "export" / format
+    m = run_export(capture_dir, format, out, quiet=quiet, overwrite=overwrite)
+    typer.echo(f"export {format}: {m['metrics']['views']} views -> {out}")
+
+
+@app.command()
 def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
             no_sheet: bool = typer.Option(False, "--no-sheet", help="skip the contact sheet")):
     """Show what a stage folder holds: a table, and a contact sheet PNG of its previews."""

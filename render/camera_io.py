@@ -46,7 +46,7 @@ __all__ = [
     "write_cameras_json", "read_cameras_json",
     "ColmapPoints", "colmap_reconstruction", "write_colmap_model", "write_colmap_text", "read_colmap_model",
     "read_colmap_text",
-    "write_transforms_json", "read_transforms_json",
+    "transforms_doc", "write_transforms_json", "write_blender_transforms_json", "read_transforms_json",
 ]
 
 #: the split labels ``cameras.json`` accepts
@@ -468,30 +468,69 @@ def _ngp_intrinsics(k: Intrinsics) -> dict:
     return d
 
 
-def write_transforms_json(path, cameras: Sequence[Camera], file_paths: Sequence[str]) -> None:
-    """Write a nerfstudio / instant-ngp ``transforms.json``.
-
-    cameras: N :class:`Camera`; file_paths: N image paths relative to the json's folder.
-    Each frame has ``file_path`` and ``transform_matrix`` (4x4 camera-to-world, OpenGL axes:
-    x right, y up, z backward; the world frame is ours, unchanged). Intrinsics
-    ``fl_x fl_y cx cy w h k1 k2 p1 p2`` (+ ``k3`` when non-zero) sit at the top level when every
-    camera shares them, else in every frame (nerfstudio reads either). ``camera_model`` is
-    ``"OPENCV"`` when any camera has distortion, else ``"PINHOLE"``.
-    """
+def transforms_doc(cameras: Sequence[Camera], file_paths: Sequence[str],
+                   frame_extras: Sequence[dict] | None = None, extra: dict | None = None) -> dict:
+    """The ``transforms.json`` document (see :func:`write_transforms_json`) as a dict."""
     cams = _check_cameras(cameras)
     paths = _check_file_names(file_paths, len(cams), "transforms.json file paths")
+    if frame_extras is not None and len(frame_extras) != len(cams):
+        raise ValueError(f"transforms.json: got {len(frame_extras)} frame extras for {len(cams)} cameras")
     shared = all(c.intrinsics == cams[0].intrinsics for c in cams)
     doc: dict = {"camera_model": "OPENCV" if any(c.intrinsics.has_distortion for c in cams) else "PINHOLE"}
     if shared:
         doc.update(_ngp_intrinsics(cams[0].intrinsics))
     frames = []
-    for c, p in zip(cams, paths):
+    for i, (c, p) in enumerate(zip(cams, paths)):
         f = {"file_path": p,
              "transform_matrix": opencv_to_opengl(_rigid(c.cam_to_world, f"camera {c.name!r}")).tolist()}
         if not shared:
             f.update(_ngp_intrinsics(c.intrinsics))
+        if frame_extras is not None:
+            f.update(frame_extras[i])
         frames.append(f)
     doc["frames"] = frames
+    doc.update(extra or {})
+    return doc
+
+
+def write_transforms_json(path, cameras: Sequence[Camera], file_paths: Sequence[str],
+                          frame_extras: Sequence[dict] | None = None, extra: dict | None = None) -> None:
+    """Write a nerfstudio / instant-ngp ``transforms.json``.
+
+    cameras: N :class:`Camera`; file_paths: N image paths relative to the json's folder.
+    Each frame has ``file_path`` and ``transform_matrix`` (4x4 camera-to-world, OpenGL axes:
+    x right, y up, z backward; the world frame is ours, unchanged) plus ``frame_extras[i]``
+    (e.g. nerfstudio's ``mask_path``, ``depth_file_path``). Intrinsics
+    ``fl_x fl_y cx cy w h k1 k2 p1 p2`` (+ ``k3`` when non-zero) sit at the top level when every
+    camera shares them, else in every frame (nerfstudio reads either). ``camera_model`` is
+    ``"OPENCV"`` when any camera has distortion, else ``"PINHOLE"``. ``extra`` adds top-level
+    keys (e.g. ``train_filenames``, ``applied_transform``, instant-ngp's ``aabb_scale``).
+    """
+    _write_json(path, transforms_doc(cameras, file_paths, frame_extras, extra))
+
+
+def write_blender_transforms_json(path, cameras: Sequence[Camera], file_paths: Sequence[str]) -> None:
+    """Write a split file in the Blender synthetic-NeRF convention (``transforms_train.json``, as
+    NeRF's, TensoRF's and nerfstudio's ``blender-data`` loaders read it).
+
+    file_paths: N image paths relative to the json's folder WITHOUT extension (those loaders add
+    ``.png``). ``camera_angle_x`` = 2 atan(w / (2 fx)) is the only intrinsic they read: they put
+    the principal point at the image centre, assume square pixels and no distortion, so cameras
+    that differ from that are refused (ValueError). The exact ``fl_x fl_y cx cy w h`` keys are
+    written too (instant-ngp prefers them). Poses as in :func:`write_transforms_json`.
+    """
+    cams = _check_cameras(cameras)
+    k = cams[0].intrinsics
+    if any(c.intrinsics != k for c in cams):
+        raise ValueError(f"{path}: the Blender convention has one camera_angle_x for all frames; intrinsics differ")
+    if k.has_distortion or abs(k.fx - k.fy) > 1e-9 * k.fx or abs(k.cx - k.width / 2) > 1e-9 * k.width \
+            or abs(k.cy - k.height / 2) > 1e-9 * k.height:
+        raise ValueError(f"{path}: the Blender convention needs square pixels, a centred principal point and no "
+                         "distortion (use transforms.json)")
+    bad = [p for p in file_paths if Path(p).suffix]
+    if bad:
+        raise ValueError(f"{path}: Blender file paths carry no extension (its loaders add .png), got {bad[0]!r}")
+    doc = transforms_doc(cams, file_paths, extra={"camera_angle_x": 2.0 * math.atan(k.width / (2.0 * k.fx))})
     _write_json(path, doc)
 
 

@@ -4,9 +4,14 @@ Layout (DESIGN.md)::
 
     capture/images/<view>.png     sRGB preview          capture/linear/<view>.exr   linear radiance
     capture/depth/<view>.exr      z-depth (0 = empty)   capture/masks/<view>.png    subject mask
-    capture/cameras.json          ground truth, ours    capture/transforms_{train,test}.json
+    capture/cameras.json          ground truth, ours    capture/transforms.json     nerfstudio, every split
+    capture/transforms_{train,test}.json   Blender/TensoRF split files (file paths without extension)
     capture/colmap/               COLMAP text model     capture/targets.json        calibration boards
     capture/manifest.json
+
+Depth EXRs hold z-depth in channel ``Z``. ``transforms.json`` follows nerfstudio's format with the
+splits, masks and depth (:func:`pipeline.export.write_nerfstudio_transforms`);
+``lumigraph export`` writes the folders that need other files (pipeline/export.py).
 
 One view is one unit of work (pipeline.distributed): rendered (the rasterizer's EGL renderer or
 the path tracer's prepared scene built once per process, pipeline.renderers) and put through the
@@ -21,13 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera
-from render.camera_io import read_cameras_json, write_cameras_json, write_colmap_text, write_transforms_json
-from render.image_io import exr_size, png_size, write_exr, write_png, write_preview
+from render.camera_io import read_cameras_json, write_blender_transforms_json, write_cameras_json, write_colmap_text
+from render.image_io import exr_size, png_size, write_depth_exr, write_exr, write_png, write_preview
 from rig.build import RigScene
 from rig.capture import (CAPTURE_SPP, CapturedView, CapturePlan, capture_list, check_capture, finish_view,
                          plan_capture, render_ideal, sensor_config)
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, read_stage_manifest, write_json
+from ..export import write_nerfstudio_transforms
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
 from ..progress import console, progress_bar
 from ..renderers import prepared_scene, raster_pool
@@ -134,7 +140,7 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
             stem = view.camera.name
             write_exr(tmp / "linear" / f"{stem}.exr", view.rgb)
             write_preview(tmp / "images" / f"{stem}.png", view.rgb)
-            write_exr(tmp / "depth" / f"{stem}.exr", view.depth)
+            write_depth_exr(tmp / "depth" / f"{stem}.exr", view.depth)
             write_png(tmp / "masks" / f"{stem}.png", view.mask.astype(np.uint8) * 255)
             bar.advance(task)
 
@@ -148,9 +154,16 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
             eng.release(scene)
         write_cameras_json(tmp / "cameras.json", cameras, split_of)
         write_colmap_text(tmp / "colmap", cameras, [f"{c.name}.png" for c in cameras])
+        names = [c.name for c in cameras]
+        write_nerfstudio_transforms(tmp / "transforms.json", cameras, split_of, [f"images/{n}.png" for n in names],
+                                    [f"masks/{n}.png" for n in names], [f"depth/{n}.exr" for n in names])
         for split in splits:
             members = [c for c, s in zip(cameras, split_of) if s == split]
-            write_transforms_json(tmp / f"transforms_{split}.json", members, [f"images/{c.name}.png" for c in members])
+            try:  # Blender/TensoRF split files: file paths without extension, camera_angle_x
+                write_blender_transforms_json(tmp / f"transforms_{split}.json", members,
+                                              [f"images/{c.name}" for c in members])
+            except ValueError as exc:  # intrinsics the convention cannot state: transforms.json holds them
+                manifest.params.setdefault("blender_split_files", str(exc).split(": ", 1)[-1])
         write_json(tmp / "targets.json", rig.targets)
         manifest.metrics = {"views": n_views, **{f"views_{s}": split_of.count(s) for s in splits},
                             "engine": eng.name, "workers": eng.workers}

@@ -3,7 +3,8 @@
 Layout (DESIGN.md)::
 
     poses/<method>/cameras.json            estimated cameras (registered views), capture's splits
-    poses/<method>/transforms_{train,test}.json   file paths point at the capture's images
+    poses/<method>/transforms.json         nerfstudio format, every split; file paths point into the capture
+    poses/<method>/transforms_{train,test}.json   Blender split files (when the intrinsics fit that convention)
     poses/<method>/colmap/                 COLMAP text model of the same cameras
     poses/<method>/sparse/                 (colmap only) COLMAP's binary model with 3D points
     poses/<method>/metrics.json            scores (see below)   poses/<method>/manifest.json
@@ -41,7 +42,6 @@ a failure folder records a method's finding on a valid capture, never damaged in
 from __future__ import annotations
 
 import json
-import os
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -53,9 +53,10 @@ import numpy as np
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, estimate_charuco,
                          estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
 from render.camera import Camera
-from render.camera_io import write_cameras_json, write_colmap_text, write_transforms_json
+from render.camera_io import write_blender_transforms_json, write_cameras_json, write_colmap_text
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
+from ..export import relpath, write_nerfstudio_transforms
 from ..progress import progress_bar
 from .capture import check_capture_folder
 
@@ -263,11 +264,21 @@ def _write_cameras(folder: Path, cap: Capture, cams: list[Camera], out_final: Pa
     split_of = dict(zip((c.name for c in cap.cameras), cap.splits))
     write_cameras_json(folder / "cameras.json", cams, [split_of[c.name] for c in cams])
     write_colmap_text(folder / "colmap", cams, [f"{c.name}.png" for c in cams])
+    # file paths lead from the finished folder into the capture's images, masks and depth
+    rel = {kind: [relpath(cap.folder / kind / f"{c.name}{suffix}", out_final) for c in cams]
+           for kind, suffix in (("images", ".png"), ("masks", ".png"), ("depth", ".exr"))}
+    have = {kind: all((cap.folder / kind / f"{c.name}{suffix}").is_file() for c in cams)
+            for kind, suffix in (("masks", ".png"), ("depth", ".exr"))}
+    write_nerfstudio_transforms(folder / "transforms.json", cams, [split_of[c.name] for c in cams], rel["images"],
+                                rel["masks"] if have["masks"] else None, rel["depth"] if have["depth"] else None)
     for split in sorted(set(cap.splits)):
-        members = [c for c in cams if split_of[c.name] == split]
+        members = [i for i, c in enumerate(cams) if split_of[c.name] == split]
         if members:
-            rel = [os.path.relpath(cap.images[c.name].resolve(), out_final.resolve()) for c in members]
-            write_transforms_json(folder / f"transforms_{split}.json", members, rel)
+            try:  # Blender/TensoRF split files: file paths without extension
+                write_blender_transforms_json(folder / f"transforms_{split}.json", [cams[i] for i in members],
+                                              [rel["images"][i].removesuffix(".png") for i in members])
+            except ValueError:  # estimated intrinsics the convention cannot state: transforms.json holds them
+                pass
 
 
 def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = PosesConfig(),
