@@ -43,8 +43,6 @@ the old meaning: ``minutes`` of training time, no deadline.
 """
 from __future__ import annotations
 
-import csv
-import io
 import math
 import shutil
 import time
@@ -57,18 +55,22 @@ from recon.nerf.data import NerfInputError, View, area_downsample, load_data
 from recon.nerf.models import MODELS, make_model
 from recon.nerf.train import Deadline, TrainConfig, evaluate_view, train
 from render.camera import Camera
-from render.image_io import atomic_path, write_exr, write_preview
+from render.image_io import write_exr, write_preview
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
+from ..io import write_csv
 from ..progress import console, progress_bar
 from .capture import check_capture_folder
 from .poses import check_poses
 
-__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "eval_factors", "eval_factor",
+__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
            "RENDER_SHARE", "WRITE_S_PER_MPIX"]
 
+#: curve.csv's columns: training step, training seconds, wall seconds since training began, held-out PSNR (dB)
 CURVE_FIELDS = ("step", "train_s", "wall_s", "psnr")
+#: the columns plotted (the report; dvc.yaml's ``plots`` x and y)
+CURVE_TIME, CURVE_PSNR = "train_s", "psnr"
 #: the share of the budget held-out renders are planned to take before their cost is known: the
 #: untrained model's cost (every sample evaluated) bounds the trained one from above and would
 #: leave short runs no training; what does not fit at the end is evaluated at a coarser scale
@@ -85,14 +87,8 @@ CHECKPOINT_BYTES_PER_S = 100e6
 
 
 def write_curve_csv(path: Path, curve: list[dict]) -> None:
-    """curve.csv: one row per held-out evaluation, columns ``CURVE_FIELDS`` (seconds, dB)."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CURVE_FIELDS, lineterminator="\n")
-    w.writeheader()
-    for row in curve:
-        w.writerow({k: row[k] for k in CURVE_FIELDS})
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(buf.getvalue())
+    """curve.csv: one row per held-out evaluation, columns ``CURVE_FIELDS`` (seconds, dB), every digit kept."""
+    write_csv(path, curve, CURVE_FIELDS, float_format=None)
 
 
 def nerf_view(model, view, full_res: bool, threads: int) -> tuple[dict, dict]:

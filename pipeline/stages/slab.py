@@ -28,7 +28,7 @@ rasterizer renders exactly).
 Units of work (pipeline.distributed; ``cluster``): direct acquisition renders one row of uv
 cameras per unit (:func:`slab_row`: the scene shared once, its renderer built once per process),
 and the held-out views are rendered from the slabs and scored one view per unit
-(:func:`evaluate_view`: the slab set shared once). The client assembles the rows into the
+(:func:`score_slab_view`: the slab set shared once). The client assembles the rows into the
 memory-mapped arrays and writes every file; the bytes are the same in process and on a cluster of
 any size. Rebinning runs in this process.
 """
@@ -43,23 +43,25 @@ import numpy as np
 from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
                         compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
-from render.color import to_srgb8
-from render.image_io import read_exr, write_exr, write_png, write_preview
+from render.image_io import write_exr, write_png, write_preview
 from render.metrics import psnr, ssim
 from render.lightfield import MODES, LightSlab, render_pinhole
 from render.lightfield import load_slabs, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
+from ..io import error_image, read_image
 from ..progress import progress_bar
 from ..renderers import prepared_scene, raster_pool
 
-__all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "evaluate_views", "evaluate_view", "slab_row",
+__all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "score_slab_views", "score_slab_view", "slab_row",
            "find_reference"]
 
 Cluster = ClusterConfig | LocalEngine | DaskEngine | None
 
 METHODS = ("direct", "rebin")
+#: multiplier of the error PNGs (errors/<view>.png), as the validate stage's default
+ERROR_GAIN = 8.0
 
 
 @dataclass(frozen=True)
@@ -96,27 +98,13 @@ def _cameras(folder: Path) -> tuple[list[Camera], list[str]]:
     return read_cameras(Path(folder) / "cameras.json")
 
 
-def _read_image(path: Path, shape: tuple[int, ...]) -> np.ndarray:
-    if not path.is_file():
-        raise BadInput(f"{path}: file not found")
-    try:
-        a = read_exr(path)
-    except ValueError as exc:  # read_exr names the file and OpenEXR's reason
-        raise BadInput(str(exc).splitlines()[0]) from None
-    if a.shape != shape:
-        raise BadInput(f"{path}: shape {a.shape}, expected {shape}")
-    if not np.all(np.isfinite(a)):
-        raise BadInput(f"{path}: non-finite pixels")
-    return a
-
-
 def load_views(capture_dir: Path, cameras: list[Camera]) -> list[CapturedView]:
     """Linear radiance and z-depth of ``cameras`` from the capture (BadInput on missing files)."""
     views = []
     for cam in cameras:
         k = cam.intrinsics
-        rgb = _read_image(Path(capture_dir) / "linear" / f"{cam.name}.exr", (k.height, k.width, 3))
-        depth = _read_image(Path(capture_dir) / "depth" / f"{cam.name}.exr", (k.height, k.width))
+        rgb = read_image(Path(capture_dir) / "linear" / f"{cam.name}.exr", (k.height, k.width, 3))
+        depth = read_image(Path(capture_dir) / "depth" / f"{cam.name}.exr", (k.height, k.width))
         views.append(CapturedView(cam, rgb, depth))
     return views
 
@@ -170,13 +158,13 @@ def _row_renderer(scene, scene_key: str, renderer: str, settings, gl_threads: in
             f = pool.render(cam)
             return f.rgb, f.depth
     else:
-        from render import pathtracer
+        from render import integrators
         from render.gbuffer import first_hit_buffers
 
         prepared = prepared_scene(scene, scene_key, settings.threads)
 
         def render(cam: Camera):
-            res = pathtracer.render(scene, cam, settings, prepared=prepared)
+            res = integrators.render(scene, cam, settings, prepared=prepared)
             depth, _ = first_hit_buffers(scene, cam, prepared.accel)
             return res.mean, depth
     return render
@@ -211,7 +199,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
     if config.method == "direct":
         if scene_file is None:
             raise BadInput(f"{capture_dir / MANIFEST}: names no readable scene file (direct acquisition renders the scene)")
-        from render import pathtracer
+        from render import integrators
         from rig.build import load_scene
         from rig.capture import plan_capture
 
@@ -224,7 +212,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
         with engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
             task = bar.add_task("slab: direct", total=total, info=renderer)
             scene = eng.share(rig.scene)
-            settings = pathtracer.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed,
+            settings = integrators.RenderSettings(integrator="auto", spp=config.spp, seed=config.seed,
                                                  threads=eng.render_threads)
             gl_threads = eng.render_threads if isinstance(eng, DaskEngine) else None
 
@@ -279,7 +267,7 @@ def _background(views: list[CapturedView]) -> np.ndarray:
 # ------------------------------------------------------------------------------------- evaluation
 
 
-def evaluate_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MODES, background=(0.0, 0.0, 0.0),
+def score_slab_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MODES, background=(0.0, 0.0, 0.0),
                   ssim_modes=None) -> dict:
     """One unit of work: ``cam``'s view rendered from ``slabs`` in every mode and scored against
     ``ref``: {mode: (metrics {"psnr"[, "ssim"]}, image, render seconds)}."""
@@ -293,7 +281,7 @@ def evaluate_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MO
     return out
 
 
-def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: list[np.ndarray],
+def score_slab_views(slabs: list[LightSlab], cameras: list[Camera], references: list[np.ndarray],
                    modes=MODES, background=(0.0, 0.0, 0.0), ssim_modes=None, cluster: Cluster = None,
                    on_view=None) -> tuple[dict, dict]:
     """Render every camera in every mode; returns ``(metrics per mode, images per mode)`` with
@@ -301,7 +289,7 @@ def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: li
 
     SSIM is computed for ``ssim_modes`` only (None: every mode; elsewhere "ssim" is absent and
     "ssim_mean" None): at 1280x960 one SSIM (render.metrics, float64) costs ~3 CPU seconds, a
-    render from the slabs ~0.3. One view per unit of work (:func:`evaluate_view`) on ``cluster``
+    render from the slabs ~0.3. One view per unit of work (:func:`score_slab_view`) on ``cluster``
     (None: in this process), the slab set shared once; ``on_view()`` as each view is done."""
     modes = tuple(modes)
     done: list = [None] * len(cameras)
@@ -314,7 +302,7 @@ def evaluate_views(slabs: list[LightSlab], cameras: list[Camera], references: li
     with engine(cluster, quiet=True) as eng:
         shared = eng.share(slabs)
         units = [(cam, ref, modes, background, ssim_modes) for cam, ref in zip(cameras, references)]
-        map_units(eng, evaluate_view, units, shared=[shared], on_result=got, name="slab-view")
+        map_units(eng, score_slab_view, units, shared=[shared], on_result=got, name="slab-view")
         del shared
     metrics, images = {}, {}
     for mode in modes:
@@ -341,7 +329,7 @@ def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray]
     compress_s = time.perf_counter() - t0
     vq = load_slabs(tmp / "compressed")
     modes = tuple(dict.fromkeys((config.mode, "quadrilinear")))
-    m_vq, images = evaluate_views(vq, test, refs, modes, bg, ssim_modes=(config.mode,), cluster=cluster)
+    m_vq, images = score_slab_views(vq, test, refs, modes, bg, ssim_modes=(config.mode,), cluster=cluster)
     for cam in test:
         write_preview(tmp / "renders_vq" / f"{cam.name}.png", images[config.mode][cam.name])
     files = slab_file_bytes(tmp / "compressed")
@@ -380,7 +368,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
     if not test:
         raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
     ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
-    refs = [_read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
+    refs = [read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
             for c in test]
     params = {"method": config.method, "mode": config.mode, "layout": asdict(config.layout),
               "direct": asdict(config.direct), "rebin": asdict(config.rebin), "min_radiance": config.min_radiance,
@@ -397,15 +385,14 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
         bg = np.asarray(info.get("background", (0.0, 0.0, 0.0)), np.float32)
         with progress_bar(quiet) as bar:
             task = bar.add_task("slab: render held-out views", total=len(test), info=f"{len(MODES)} modes")
-            by_mode, images = evaluate_views(slabs, test, refs, MODES, bg, ssim_modes=(config.mode,), cluster=eng,
+            by_mode, images = score_slab_views(slabs, test, refs, MODES, bg, ssim_modes=(config.mode,), cluster=eng,
                                              on_view=lambda: bar.advance(task))
         for cam, ref in zip(test, refs):
             img = images[config.mode][cam.name]
             write_exr(tmp / "renders" / f"{cam.name}.exr", img)
             write_preview(tmp / "renders" / f"{cam.name}.png", img)
-            err = np.abs(img - ref)
-            write_exr(tmp / "errors" / f"{cam.name}.exr", err)
-            write_png(tmp / "errors" / f"{cam.name}.png", to_srgb8(np.repeat(err.mean(2, keepdims=True), 3, 2), 8.0))
+            write_exr(tmp / "errors" / f"{cam.name}.exr", np.abs(img - ref))
+            write_png(tmp / "errors" / f"{cam.name}.png", error_image(img, ref, ERROR_GAIN))
             for mode in MODES:
                 write_preview(tmp / "modes" / mode / f"{cam.name}.png", images[mode][cam.name])
         primary = by_mode[config.mode]

@@ -17,7 +17,6 @@ Slabs are built in a scratch folder inside the stage folder and deleted after ea
 """
 from __future__ import annotations
 
-import csv
 import shutil
 import time
 from dataclasses import replace
@@ -26,17 +25,19 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera, Intrinsics
-from render.lightfield import MODES, render_pinhole
-from render.lightfield import load_slabs
+from render.lightfield import MODES, load_slabs, render_pinhole
 
 from ..artifacts import BadInput, Manifest, atomic_stage, write_json
-from .slab import SlabStageConfig, _cameras, _read_image, build_slabs, evaluate_views, find_reference
+from ..io import read_image, write_csv
+from ..plot import Series, svg_plot, write_svg
+from .capture import read_cameras
+from .slab import SlabStageConfig, build_slabs, find_reference, score_slab_views
 
-__all__ = ["run_slab_study", "svg_plot", "DEFAULT_UV", "DEFAULT_ST"]
+__all__ = ["run_slab_study", "memory_plot", "DEFAULT_UV", "DEFAULT_ST"]
 
 DEFAULT_UV = (4, 8, 16)
 DEFAULT_ST = (96, 192, 384)
-_COLOURS = {"nearest": "#d62728", "uv": "#ff7f0e", "st": "#9467bd", "quadrilinear": "#1f77b4", "depth": "#2ca02c"}
+MODE_COLOURS = {"nearest": "#d62728", "uv": "#ff7f0e", "st": "#9467bd", "quadrilinear": "#1f77b4", "depth": "#2ca02c"}
 
 
 def _ms_256(slabs, cam: Camera, mode: str, repeats: int = 3) -> tuple[float, float]:
@@ -53,42 +54,17 @@ def _ms_256(slabs, cam: Camera, mode: str, repeats: int = 3) -> tuple[float, flo
     return float(np.median(wall) * 1e3), float(np.min(cpu) * 1e3)
 
 
-def svg_plot(rows: list[dict], width: int = 640, height: int = 420) -> str:
-    """A dependency-free SVG: mean PSNR (dB) against slab memory (MB, log scale), per mode."""
-    mb = np.array([r["slab_mb"] for r in rows], float)
-    ps = np.array([r["psnr"] for r in rows], float)
-    x0, x1 = np.log10(mb.min()) - 0.05, np.log10(mb.max()) + 0.05
-    y0, y1 = np.floor(ps.min()) - 0.5, np.ceil(ps.max()) + 0.5
-    L, R, T, B = 60, 130, 20, 50
-    X = lambda m: L + (np.log10(m) - x0) / (x1 - x0) * (width - L - R)  # noqa: E731
-    Y = lambda p: height - B - (p - y0) / (y1 - y0) * (height - T - B)  # noqa: E731
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" font-family="sans-serif" font-size="11">',
-           f'<rect width="{width}" height="{height}" fill="white"/>',
-           f'<line x1="{L}" y1="{height - B}" x2="{width - R}" y2="{height - B}" stroke="black"/>',
-           f'<line x1="{L}" y1="{T}" x2="{L}" y2="{height - B}" stroke="black"/>',
-           f'<text x="{(L + width - R) / 2}" y="{height - 12}" text-anchor="middle">slab memory (MB, log scale)</text>',
-           f'<text x="14" y="{(T + height - B) / 2}" transform="rotate(-90 14 {(T + height - B) / 2})" '
-           f'text-anchor="middle">mean PSNR of held-out views (dB)</text>']
-    for p in np.arange(y0 + 0.5, y1, 1.0 if y1 - y0 < 12 else 2.0):
-        out.append(f'<text x="{L - 6}" y="{Y(p) + 4:.1f}" text-anchor="end">{p:.0f}</text>')
-    for m in sorted(set(mb)):
-        out.append(f'<text x="{X(m):.1f}" y="{height - B + 14}" text-anchor="middle">{m:.0f}</text>')
-    for i, mode in enumerate(MODES):
-        pts = sorted((r["slab_mb"], r["psnr"], r["uv_res"], r["st_res"]) for r in rows if r["mode"] == mode)
-        if not pts:
-            continue
-        c = _COLOURS.get(mode, "black")
-        for uv in sorted({p[2] for p in pts}):  # one polyline per uv resolution (st grows along it)
-            line = [p for p in pts if p[2] == uv]
-            out.append('<polyline fill="none" stroke="{}" stroke-width="1.5" points="{}"/>'.format(
-                c, " ".join(f"{X(m):.1f},{Y(p):.1f}" for m, p, _, _ in line)))
-        for m, p, uv, st in pts:
-            out.append(f'<circle cx="{X(m):.1f}" cy="{Y(p):.1f}" r="3" fill="{c}"><title>{mode} uv{uv} st{st}: '
-                       f'{p:.2f} dB, {m:.0f} MB</title></circle>')
-        out.append(f'<rect x="{width - R + 10}" y="{T + 16 * i}" width="10" height="10" fill="{c}"/>'
-                   f'<text x="{width - R + 25}" y="{T + 16 * i + 9}">{mode}</text>')
-    out.append("</svg>")
-    return "\n".join(out) + "\n"
+def memory_plot(rows: list[dict]) -> str:
+    """SVG (:func:`pipeline.plot.svg_plot`): mean held-out PSNR (dB) against slab memory (MB, log
+    scale), one line per (interpolation mode, uv resolution) along which st grows; one colour per mode."""
+    series = []
+    for mode in MODES:
+        for uv in sorted({r["uv_res"] for r in rows if r["mode"] == mode}):
+            pts = sorted((r["slab_mb"], r["psnr"], r["st_res"]) for r in rows if r["mode"] == mode and r["uv_res"] == uv)
+            series.append(Series(f"{mode} uv{uv}", [p[0] for p in pts], [p[1] for p in pts], [f"st{p[2]}" for p in pts],
+                                 colour=MODE_COLOURS.get(mode, "#000000"), line=True))
+    return svg_plot(series, "slab memory (MB)", "mean PSNR of held-out views (dB)",
+                    "light slab: PSNR against memory per interpolation mode", logx=True)
 
 
 def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAULT_ST,
@@ -96,12 +72,12 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
                    quiet: bool = False) -> dict:
     """Build and score every grid point; returns the manifest (see the module docstring)."""
     capture_dir = Path(capture_dir)
-    cams, splits = _cameras(capture_dir)
+    cams, splits = read_cameras(capture_dir / "cameras.json")
     test = [c for c, s in zip(cams, splits) if s == "test"]
     if not test:
         raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
     ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
-    refs = [_read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
+    refs = [read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
             for c in test]
     manifest = Manifest("slab_study", params={"uv_res": list(uv_res), "st_res": list(st_res), "method": config.method,
                                               "reference": ref_kind})
@@ -114,7 +90,7 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
                 scratch = tmp / "scratch"
                 _, info = build_slabs(capture_dir, scratch, cfg, None, quiet)
                 slabs = load_slabs(scratch)
-                metrics, _ = evaluate_views(slabs, test, refs, MODES, info.get("background", (0.0, 0.0, 0.0)),
+                metrics, _ = score_slab_views(slabs, test, refs, MODES, info.get("background", (0.0, 0.0, 0.0)),
                                             ssim_modes=(config.mode,))
                 for mode in MODES:
                     wall_ms, cpu_ms = _ms_256(slabs, test[0], mode)
@@ -131,11 +107,8 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
                     best = max((r for r in rows if r["uv_res"] == uv and r["st_res"] == st), key=lambda r: r["psnr"])
                     print(f"slab study uv{uv} st{st}: {rows[-1]['slab_mb']:.0f} MB, best {best['mode']} "
                           f"{best['psnr']:.2f} dB, build {info['build_s']:.1f} s", flush=True)
-        with open(tmp / "study.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        (tmp / "study.svg").write_text(svg_plot(rows))
+        write_csv(tmp / "study.csv", rows, list(rows[0]))
+        write_svg(tmp / "study.svg", memory_plot(rows))
         write_json(tmp / "study.json", {"rows": rows, "uv_res": list(uv_res), "st_res": list(st_res),
                                         "reference": ref_kind, "views": [c.name for c in test]})
         manifest.metrics = {"grid_points": len(uv_res) * len(st_res),

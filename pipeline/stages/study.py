@@ -38,8 +38,6 @@ of points run concurrently on shared cores would not be comparable (docs/scaling
 from __future__ import annotations
 
 import copy
-import csv
-import io
 import re
 import shutil
 import time
@@ -49,16 +47,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from render.image_io import atomic_path, read_exr
-
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, read_json, write_json
+from ..io import read_image, write_csv
+from ..plot import Series, pareto_mask, svg_plot, write_svg
 from ..progress import progress_bar
-from ..report import Series, pareto_mask, svg_plot
 from .validate import ValidateConfig, compare_view, reference_at
 
-__all__ = ["StudyConfig", "PROFILES", "derived_scene", "run_study", "pareto_rows", "STAGES"]
+__all__ = ["StudyConfig", "PROFILES", "derived_scene", "run_study", "pareto_rows"]
 
-STAGES = ("reference", "poses", "slab", "nerf", "end_to_end")
 _TRUTH_SEED_OFFSET = 1000
 
 
@@ -161,7 +157,7 @@ def _score(images: dict[str, np.ndarray], truth: dict[str, tuple[np.ndarray, np.
 
 
 def _read_views(folder: Path, views: list[str]) -> dict[str, np.ndarray]:
-    return {v: read_exr(folder / f"{v}.exr") for v in views}
+    return {v: read_image(folder / f"{v}.exr") for v in views}
 
 
 def pareto_rows(rows: list[dict], accuracy: str = "psnr", lower_is_better: bool = False,
@@ -329,16 +325,6 @@ COLUMNS = ["stage", "family", "setting", "status", "time_s", "end_to_end_s", "ps
            "mode", "poses", "minutes", "pareto", "reason"]
 
 
-def _csv(path: Path, rows: list[dict], columns: list[str]) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: "" if r.get(k) is None else (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in columns})
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(buf.getvalue())
-
-
 def _front_svg(rows: list[dict], title: str, ylabel: str, accuracy: str, cost: str, lower_is_better: bool,
                hlines) -> str:
     """One series per family, plus the Pareto front as a dashed black line."""
@@ -395,7 +381,7 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
                           lambda: run_reference(rig, scene_file, truth_dir, spp=config.truth_spp,
                                                 seed=seed + _TRUTH_SEED_OFFSET, quiet=True))
             views = [c.name for c in rig.cameras.get("test", [])]
-            truth = {v: (read_exr(truth_dir / "linear" / f"{v}.exr"), read_exr(truth_dir / "variance" / f"{v}.exr"))
+            truth = {v: (read_image(truth_dir / "linear" / f"{v}.exr"), read_image(truth_dir / "variance" / f"{v}.exr"))
                      for v in views}
             ceiling = float(np.mean([10 * np.log10(1 / max(float(np.mean(var)), 1e-30)) for _, var in truth.values()]))
             black = float(np.mean([_score({v: np.zeros_like(r)}, {v: (r, s)})["psnr"] for v, (r, s) in truth.items()]))
@@ -429,16 +415,14 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
             sr = [r for r in ok if r["stage"] == stage]
             if sr:
                 svg = _front_svg(sr, f"study {title}", ylabel, acc, "time_s", low, [] if stage == "poses" else hl)
-                with atomic_path(tmp / f"pareto_{stage}.svg") as p:
-                    Path(p).write_text(svg)
+                write_svg(tmp / f"pareto_{stage}.svg", svg)
         if e2e:
             svg = _front_svg(e2e, "study end to end: capture + poses + model", "PSNR (dB)", "psnr", "end_to_end_s",
                              False, hl)
-            with atomic_path(tmp / "pareto_end_to_end.svg") as p:
-                Path(p).write_text(svg)
+            write_svg(tmp / "pareto_end_to_end.svg", svg)
         all_rows = rows + e2e
-        _csv(tmp / "study.csv", all_rows, COLUMNS)
-        _csv(tmp / "pareto.csv", [r for r in all_rows if r.get("pareto")],
+        write_csv(tmp / "study.csv", all_rows, COLUMNS)
+        write_csv(tmp / "pareto.csv", [r for r in all_rows if r.get("pareto")],
              ["stage", "setting", "time_s", "end_to_end_s", "psnr", "rotation_error_deg"])
         write_json(tmp / "study.json", {"profile": profile, "config": asdict(config), "scene": rig.scene.name,
                                         "views": views, "truth_spp": config.truth_spp,

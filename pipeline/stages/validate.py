@@ -49,8 +49,6 @@ poses (an input path under ``poses/<method>/``); ``end_to_end_s`` = ``time_s + u
 """
 from __future__ import annotations
 
-import csv
-import io
 import math
 import os
 import re
@@ -60,17 +58,17 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
-from render.color import to_srgb8
-from render.image_io import atomic_path, read_exr, write_png
+from render.image_io import write_png
 from render.metrics import mse_to_psnr, psnr, ssim
 
 from ..artifacts import (MANIFEST, BadInput, Manifest, atomic_stage, check_file_stem, check_out, read_json,
                          read_manifest, read_stage_manifest, write_json)
+from ..io import error_image, read_image, write_csv
 from ..progress import progress_bar
 from .capture import read_cameras
 
 __all__ = ["ValidateConfig", "ModelDir", "discover_models", "reference_views", "compare_view", "z_scores",
-           "error_png", "zmap_png", "run_validate", "NOT_MODELS", "reference_at", "area_average", "pose_summary"]
+           "model_subfolder", "zmap_png", "run_validate", "NOT_MODELS", "reference_at", "area_average", "pose_summary"]
 
 #: top-level stage folders that are not models (inputs, ground truth, or this stage)
 NOT_MODELS = ("capture", "reference", "validate", "poses", "study")
@@ -140,23 +138,6 @@ def reference_views(reference_dir: Path) -> list[str]:
     return names
 
 
-def _read(path: Path, shape: tuple[int, ...] | None = None) -> np.ndarray:
-    """A finite float32 EXR (BadInput naming the file otherwise)."""
-    if not path.is_file():
-        raise BadInput(f"{path}: file not found")
-    try:
-        a = read_exr(path)
-    except ValueError as exc:  # read_exr names the file and OpenEXR's reason
-        raise BadInput(str(exc).splitlines()[0]) from None
-    if a.ndim == 2 and shape is not None and len(shape) == 3:
-        a = np.repeat(a[..., None], shape[2], axis=2)
-    if shape is not None and a.shape != shape:
-        raise BadInput(f"{path}: shape {a.shape}, expected {shape} (the reference's)")
-    if not np.all(np.isfinite(a)):
-        raise BadInput(f"{path}: non-finite pixels")
-    return a
-
-
 # ------------------------------------------------------------------------------------- metrics
 
 
@@ -190,12 +171,6 @@ def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: V
         "within_noise": bool(excess <= 0),
         "z_within_fraction": float(np.mean(z <= z_crit)),
     }
-
-
-def error_png(render: np.ndarray, ref: np.ndarray, gain: float) -> np.ndarray:
-    """(H, W, 3) uint8 grey sRGB of |render - ref| averaged over RGB, times ``gain``."""
-    err = np.abs(render.astype(np.float32) - ref).mean(axis=2, keepdims=True)
-    return to_srgb8(np.repeat(err, 3, axis=2), gain)
 
 
 def zmap_png(z: np.ndarray, z_crit: float) -> np.ndarray:
@@ -303,19 +278,10 @@ def _compact(metrics: dict) -> dict:
     return out
 
 
-def _slug(name: str) -> Path:
+def model_subfolder(name: str) -> Path:
+    """The relative folder of model ``name``'s images under ``errors/`` and ``zmaps/``: its
+    '/'-separated parts with every character outside [A-Za-z0-9_.-] replaced by '_'."""
     return Path(*[_SAFE.sub("_", p) for p in name.split("/")])
-
-
-def _write_csv(path: Path, rows: list[dict], columns: list[str]) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n", extrasaction="ignore")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: ("" if r.get(k) is None else (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]))
-                    for k in columns})
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(buf.getvalue())
 
 
 def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateConfig = ValidateConfig(),
@@ -348,10 +314,10 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
     z_crit = float(norm.ppf(1.0 - config.alpha / 2.0))
     refs = {}
     for v in views:
-        ref = _read(ref_dir / "linear" / f"{v}.exr")
+        ref = read_image(ref_dir / "linear" / f"{v}.exr")
         if ref.ndim != 3 or ref.shape[2] != 3:
             raise BadInput(f"{ref_dir / 'linear' / (v + '.exr')}: expected an RGB image, got shape {ref.shape}")
-        var = _read(ref_dir / "variance" / f"{v}.exr", ref.shape)
+        var = read_image(ref_dir / "variance" / f"{v}.exr", ref.shape, grey_to_rgb=True, shape_of="the reference's")
         refs[v] = (ref, var)
         manifest.add_input(ref_dir / "linear" / f"{v}.exr")
         manifest.add_input(ref_dir / "variance" / f"{v}.exr")
@@ -373,14 +339,14 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
             for v in views:
                 ref, var = refs[v]
                 path = m.folder / "renders" / f"{v}.exr"
-                img = _read(path)
+                img = read_image(path)
                 if img.ndim == 2:
                     img = np.repeat(img[..., None], 3, axis=2)
                 ref, var, k = reference_at(ref, var, img.shape, path)
                 manifest.add_input(path)
                 per_view[v] = {**compare_view(img, ref, var, config), "scale": k}
-                write_png(tmp / "errors" / _slug(m.name) / f"{v}.png", error_png(img, ref, config.error_gain))
-                write_png(tmp / "zmaps" / _slug(m.name) / f"{v}.png",
+                write_png(tmp / "errors" / model_subfolder(m.name) / f"{v}.png", error_image(img, ref, config.error_gain))
+                write_png(tmp / "zmaps" / model_subfolder(m.name) / f"{v}.png",
                           zmap_png(z_scores(img, ref, var, config.sigma_floor), z_crit))
                 view_rows.append({"model": m.name, "view": v, "model_view": f"{m.name}:{v}", **per_view[v]})
                 bar.advance(task)
@@ -402,10 +368,10 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
         write_json(tmp / "details.json", metrics)
         write_json(tmp / "metrics.json", _compact(metrics))
         model_rows = [{"model": n, **{k: v for k, v in r.items() if k != "per_view"}} for n, r in results.items()]
-        _write_csv(tmp / "plots" / "models.csv", model_rows,
+        write_csv(tmp / "plots" / "models.csv", model_rows,
                    ["model", "stage", "poses", "psnr_mean", "ssim_mean", "psnr_truth_est_mean", "noise_share_mean",
                     "z_within_fraction_mean", "psnr_noise_ceiling_mean", "time_s", "upstream_s", "end_to_end_s"])
-        _write_csv(tmp / "plots" / "per_view.csv", view_rows,
+        write_csv(tmp / "plots" / "per_view.csv", view_rows,
                    ["model_view", "model", "view", "psnr", "ssim", "psnr_noise_ceiling", "noise_share",
                     "z_within_fraction"])
         manifest.metrics = {"models": len(results), "views": len(views), "best": best,

@@ -260,13 +260,13 @@ def test_inspect_every_stage_folder_run_wrote(tiny_run):
 
 def test_exact_match_metrics_are_written_as_finite_json(tiny_run, tmp_path):
     """Hard case: a model that reproduces its reference exactly. The slab stage's scoring
-    (pipeline.stages.slab.evaluate_views, on the run's slab set, against its own render of a
+    (pipeline.stages.slab.score_slab_views, on the run's slab set, against its own render of a
     captured view) and the NeRF stage's (recon.nerf.train.evaluate_view, an untrained model
     against its own render) give PSNR_MAX_DB and SSIM 1, and their metrics write as strict JSON
     (pipeline.artifacts.write_json, allow_nan=False), where +inf used to crash both stages."""
     from pipeline.artifacts import write_json
     from pipeline.stages.capture import read_cameras
-    from pipeline.stages.slab import evaluate_views
+    from pipeline.stages.slab import score_slab_views
     from recon.nerf.data import View
     from recon.nerf.models import make_model
     from recon.nerf.train import evaluate_view, render_view as nerf_render
@@ -280,7 +280,7 @@ def test_exact_match_metrics_are_written_as_finite_json(tiny_run, tmp_path):
     cam = [c for c, s in zip(cams, splits) if s == "train"][0]  # the tiny scene's test views miss the slabs
     own = slab_render(slabs, cam, "depth", (0.0, 0.0, 0.0))
     assert own.max() > 0
-    metrics, _ = evaluate_views(slabs, [cam], [own], modes=("depth",))
+    metrics, _ = score_slab_views(slabs, [cam], [own], modes=("depth",))
     assert metrics["depth"]["psnr_mean"] == PSNR_MAX_DB and metrics["depth"]["ssim_mean"] == 1.0
     write_json(tmp_path / "slab_metrics.json", metrics)
 

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.report import Series, pareto_mask, svg_plot, write_report
+from pipeline.plot import Series, pareto_mask, svg_plot
+from pipeline.report import write_report
 
 from .test_validate import tiny_artifacts  # noqa: F401  (the shared session fixture)
 

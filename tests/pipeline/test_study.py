@@ -122,3 +122,23 @@ def test_report_embeds_the_study(study, tiny_artifacts, tmp_path):  # noqa: F811
     assert text.count("<svg") >= 1 + len(list(study.glob("*.svg")))
     assert "Study: Pareto-optimal settings" in text and "light slab: resolution x interpolation" in text
     assert np.isfinite(json.loads((study / "study.json").read_text())["psnr_noise_ceiling"])
+
+
+def test_nerf_study_writes_its_table_plot_and_summary(tmp_path):
+    """The NeRF study's files from given curves (no training): the table keeps every digit, the
+    SVG (pipeline.plot) holds a line per run plus the public reference points, the summary is JSON."""
+    from recon.nerf.study import CURVES_COLUMNS, NerfStudy
+
+    from pipeline.stages.nerf_study import write_nerf_study
+
+    curves = {"a": [{"step": i, "train_s": 30.0 * i, "wall_s": 31.0 * i, "psnr": 20.0 + i / 3} for i in range(1, 5)],
+              "b": [{"step": 7, "train_s": 60.0, "wall_s": 61.0, "psnr": 18.0}]}
+    rows = [{"label": k, "model": "fast", "poses": "gt", **r} for k, c in curves.items() for r in c]
+    write_nerf_study(tmp_path, NerfStudy(curves, rows, {"a": {"final_psnr": 21.3}}, 2.0, "wall", 8, (160, 120)))
+    table = list(csv.DictReader((tmp_path / "curves.csv").open()))
+    assert list(table[0]) == list(CURVES_COLUMNS) and len(table) == 5
+    assert float(table[0]["psnr"]) == 20.0 + 1 / 3  # repr: every digit kept
+    svg = (tmp_path / "curves.svg").read_text()
+    assert svg.startswith("<svg") and svg.count("<polyline") == 1  # "b" has one point: nothing to join
+    assert ">a</text>" in svg and "public factored-grid CPU reference" in svg and "160x120" in svg
+    assert json.loads((tmp_path / "summary.json").read_text())["runs"]["a"]["final_psnr"] == 21.3
