@@ -107,13 +107,13 @@ def _scheduler_overhead(client) -> dict:
 
 def _task_bytes(rig) -> dict:
     """Pickled sizes of what moves per unit of work (protocol 5, as Dask sends it)."""
-    from render import pathtracer
+    from render import integrators
     from render.effects import scene_effects
     from pipeline.stages.reference import SAMPLE_BATCH, finish_view, render_batch, resize_camera, select_views
 
     cam = resize_camera(select_views(rig, VIEWS)[0][1], *SIZE)
     eff = frozenset(scene_effects(rig.scene))
-    st = pathtracer.RenderSettings(integrator="auto", spp=SPP)
+    st = integrators.RenderSettings(integrator="auto", spp=SPP)
     args = ("shared-0123456789abcdef0123456789abcdef", cam, st, (0, SAMPLE_BATCH), eff)
     part = render_batch(rig.scene, *args)
     nbytes = lambda x: len(pickle.dumps(x, protocol=5))  # noqa: E731
@@ -197,14 +197,14 @@ def simulate(views: int, spp: int, workers: int, t_batch: float, t_fold: float, 
 def _constants(rig) -> dict:
     """Per-task CPU seconds measured in process on one thread at SIZE (the time on a free core,
     whatever the machine's load); :func:`_projection` scales them to 640x480 by pixel count."""
-    from render import pathtracer
+    from render import integrators
     from render.effects import scene_effects
     from render.image_io import write_exr, write_preview
     from pipeline.stages.reference import fold_batches, finish_view, render_batch, resize_camera, select_views
 
     cam = resize_camera(select_views(rig, VIEWS)[0][1], *SIZE)
     eff = frozenset(scene_effects(rig.scene))
-    st = pathtracer.RenderSettings(integrator="direct", spp=SPP, threads=1)
+    st = integrators.RenderSettings(integrator="direct", spp=SPP, threads=1)
     render_batch(rig.scene, "bench-const", cam, st, (0, 8), eff)  # warm-up, builds the BVH
     clock = time.process_time  # CPU seconds of this (single-threaded) work: what a free core would take
     t0 = clock()

@@ -40,7 +40,7 @@ import trimesh
 
 from bench.common import RESULTS_DIR, median_time, write_result
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, prepare, render
+from render.integrators import RenderSettings, prepare, render
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, Medium, Scene, SceneObject
 
@@ -89,7 +89,7 @@ def _rmse(a, b, mask=None):
 def caustic_region(ps, cam: Camera, radius: float = 0.3) -> np.ndarray:
     """(H, W) bool: pixels whose first hit is the floor within ``radius`` of the spot under the
     ball, where the caustic lies (the rest of the image: the ball, its highlights and the floor
-    lit directly). ps: the scene's :class:`render.pathtracer.PreparedScene`."""
+    lit directly). ps: the scene's :class:`render.integrators.PreparedScene`."""
     o, d = cam.pixel_rays()
     h = ps.accel.intersect(o, d)
     p = o + np.where(np.isfinite(h.t), h.t, 0.0)[:, None] * d
@@ -127,7 +127,7 @@ def _interp_loglog(points, t: float) -> float:
 
 def _plot(rows: list[dict], path) -> None:
     """log10 RMSE against wall time (log), one line per (scene, integrator), as SVG."""
-    from pipeline.report import Series, svg_plot
+    from pipeline.plot import Series, svg_plot
 
     series = []
     for scene in dict.fromkeys(r["scene"] for r in rows):

@@ -59,10 +59,10 @@ import trimesh
 
 from bench.common import write_result
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, prepare
+from render.integrators import RenderSettings, prepare
 from render.poses import look_at
 from render.scene import Emissive, Lambertian, Medium, Scene, SceneObject
-from render.volpath import render_volpath
+from render.integrators.volpath import render_volpath
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZE = 64

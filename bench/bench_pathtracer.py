@@ -34,7 +34,7 @@ from bench.common import RESULTS_DIR, write_result
 from render.camera import Camera, Intrinsics
 from render.metrics import rmse
 from render.film import RenderResult
-from render.pathtracer import RenderSettings, prepare, refine, render
+from render.integrators import RenderSettings, prepare, refine, render
 from render.poses import look_at
 from render.scene import Emissive, Lambertian, Scene, SceneObject
 

@@ -64,8 +64,8 @@ def raster_pool(scene, scene_key: str, gl_threads: int | None = None) -> RasterP
 
 
 def prepared_scene(scene, scene_key: str, threads: int):
-    """This process's :func:`render.pathtracer.prepare` of the shared scene ``scene_key`` (the
+    """This process's :func:`render.integrators.prepare` of the shared scene ``scene_key`` (the
     same key as the reference stage's batches: ``<key>-<threads>``)."""
-    from render import pathtracer
+    from render import integrators
 
-    return worker_cache(f"{scene_key}-{threads}", lambda: pathtracer.prepare(scene, threads=threads))
+    return worker_cache(f"{scene_key}-{threads}", lambda: integrators.prepare(scene, threads=threads))

@@ -19,38 +19,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Dielectric, Emissive, Lambertian, Mirror, Scene
+from .scene import Dielectric, DiffuseEmitter, Emissive, Lambertian, Mirror, RoughConductor, RoughDielectric, Scene
 from .texture import decode_texture, sample_bilinear
 from .sampling import INV_PI, cosine_hemisphere, cosine_hemisphere_pdf
 
 __all__ = [
-    "BSDFSample", "DiffuseEmitter",
+    "BSDFSample",
     "lambert_eval", "lambert_pdf", "lambert_sample",
     "mirror_sample", "fresnel_dielectric", "dielectric_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample",
     "MaterialTable", "LAMBERT", "MIRROR", "DIELECTRIC", "EMISSIVE", "CONDUCTOR", "ROUGH_DIELECTRIC",
 ]
 
 LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
-#: GGX microfacet kinds (render.microfacet); only the numpy integrators (render.volpath) shade them
+#: GGX microfacet kinds (render.scene's rough materials, BSDFs in render.microfacet); only the numpy integrators (render.integrators.volpath) shade them
 CONDUCTOR, ROUGH_DIELECTRIC = 4, 5
-
-
-class DiffuseEmitter(Lambertian):
-    """A Lambertian surface that also emits ``radiance`` (3,) (front side, or both if two_sided).
-
-    The scene model's :class:`render.scene.Emissive` reflects nothing; this one reflects like
-    a Lambertian of ``albedo`` and emits, which the white-furnace closed form needs. Renderers
-    other than the path tracer see it as a plain Lambertian (it subclasses one).
-    """
-
-    def __init__(self, albedo=0.8, radiance=1.0, two_sided: bool = False, texture=None):
-        super().__init__(albedo=albedo, texture=texture)
-        r = np.asarray(radiance, dtype=np.float64).reshape(-1)
-        r = np.repeat(r, 3) if r.size == 1 else r
-        if r.shape != (3,) or not np.all(np.isfinite(r)) or np.any(r < 0):
-            raise ValueError(f"radiance must be three finite non-negative numbers, got {radiance!r}")
-        self.radiance = r
-        self.two_sided = bool(two_sided)
 
 
 @dataclass
@@ -214,8 +196,6 @@ class MaterialTable:
         two = np.zeros(m, bool)
         tex = {}
         alpha, eta, kk = np.zeros(m), np.ones((m, 3)), np.zeros((m, 3))
-        from .microfacet import RoughConductor, RoughDielectric
-
         for i, o in enumerate(scene.objects):
             mat = o.material
             if isinstance(mat, RoughConductor):

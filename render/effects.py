@@ -6,7 +6,8 @@ the rasterizer only when it simulates every effect exactly, else the path tracer
 """
 from __future__ import annotations
 
-from .scene import Dielectric, DirectionalLight, Emissive, Lambertian, Mirror, PointLight, Scene, SpotLight
+from .scene import (ALPHA_SMOOTH, Dielectric, DirectionalLight, Emissive, Lambertian, Mirror, PointLight,
+                    RoughConductor, RoughDielectric, Scene, SpotLight)
 
 __all__ = [
     "TRANSPORT_EFFECTS", "SENSOR_EFFECTS", "ALL_EFFECTS", "RASTER_EFFECTS",
@@ -24,12 +25,10 @@ RASTER_EFFECTS = frozenset({"direct", "shadows", "noise", "distortion", "vignett
 
 def _glossy(m) -> bool:
     """A GGX microfacet material rough enough to be sampled as a non-delta lobe."""
-    from .microfacet import ALPHA_SMOOTH, RoughConductor, RoughDielectric
     return isinstance(m, (RoughConductor, RoughDielectric)) and m.alpha >= ALPHA_SMOOTH
 
 
 def _smooth_microfacet(m) -> bool:
-    from .microfacet import ALPHA_SMOOTH, RoughConductor, RoughDielectric
     return isinstance(m, (RoughConductor, RoughDielectric)) and m.alpha < ALPHA_SMOOTH
 
 
@@ -38,7 +37,7 @@ def infer_effects(scene: Scene) -> frozenset[str]:
 
     Glossy (GGX) surfaces scatter light like diffuse ones in Heckbert's classes (a non-delta
     vertex: direct light, interreflection, caustic receivers); GGX at alpha below
-    render.microfacet.ALPHA_SMOOTH is specular.
+    render.scene.ALPHA_SMOOTH is specular.
     """
     mats = [o.material for o in scene.objects]
     diffuse = [m for m in mats if (isinstance(m, Lambertian) and m.albedo.max() > 0) or _glossy(m)]

@@ -14,8 +14,8 @@ of the radiosity form factor). Emission is one-sided (towards the triangle's nor
 the material is two-sided. Units follow :mod:`render.scene`: a point light gives irradiance
 I cos / r^2, a directional light E cos.
 
-:func:`sample_emission` samples rays *leaving* the lights (photons of render.sppm, the first
-vertex and direction of render.bdpt's light subpaths), with the densities bidirectional
+:func:`sample_emission` samples rays *leaving* the lights (photons of render.integrators.sppm, the first
+vertex and direction of render.integrators.bdpt's light subpaths), with the densities bidirectional
 methods weigh them by.
 """
 from __future__ import annotations

@@ -1,5 +1,8 @@
 """Glossy surfaces: the GGX (Trowbridge-Reitz) microfacet BSDF, conductor and rough dielectric.
 
+The materials themselves (:class:`render.scene.RoughConductor`, :class:`render.scene.RoughDielectric`,
+``ALPHA_SMOOTH``) live with the other materials in :mod:`render.scene`; this module is their BSDF.
+
 Vectorized over rays in the z-up local frames of :mod:`render.bsdf` (``w.z = cos theta``), with
 the same sample / eval / pdf split and :class:`render.bsdf.BSDFSample` results, so every
 integrator that takes Lambertian, mirror and glass takes these as one more (non-delta) lobe.
@@ -23,57 +26,18 @@ A conductor's frame faces wo (two-sided, like mirrors); a dielectric's frame is 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from .bsdf import BSDFSample, fresnel_dielectric
-from .scene import _rgb
+from .scene import ALPHA_SMOOTH
 
 __all__ = [
-    "RoughConductor", "RoughDielectric", "ALPHA_SMOOTH",
     "ggx_d", "ggx_lambda", "ggx_g1", "ggx_g", "ggx_sample_visible", "ggx_visible_pdf",
     "fresnel_complex", "conductor_eval", "conductor_pdf", "conductor_sample",
     "rough_dielectric_eval", "rough_dielectric_pdf", "rough_dielectric_sample",
 ]
 
-ALPHA_SMOOTH = 1e-3
 _EPS = 1e-12
-
-
-@dataclass
-class RoughConductor:
-    """A metal: GGX roughness ``alpha`` in [0, 1] and complex IOR ``eta + i k`` per RGB channel.
-
-    Defaults: gold-ish (pbrt's Au at R, G, B). alpha < ALPHA_SMOOTH is a perfect mirror with
-    the conductor's Fresnel reflectance.
-    """
-
-    alpha: float = 0.2
-    eta: np.ndarray = field(default_factory=lambda: np.array([0.143, 0.374, 1.442]))
-    k: np.ndarray = field(default_factory=lambda: np.array([3.983, 2.385, 1.603]))
-
-    def __post_init__(self):
-        self.eta = _rgb(self.eta, "eta")
-        self.k = _rgb(self.k, "k")
-        if not (np.isfinite(self.alpha) and 0 <= self.alpha <= 1):
-            raise ValueError(f"alpha must lie in [0, 1], got {self.alpha}")
-        if np.any(self.eta <= 0):
-            raise ValueError(f"eta must be positive, got {self.eta.tolist()}")
-
-
-@dataclass
-class RoughDielectric:
-    """Frosted glass: GGX roughness ``alpha`` in [0, 1], index of refraction ``ior`` (outside 1)."""
-
-    alpha: float = 0.2
-    ior: float = 1.5
-
-    def __post_init__(self):
-        if not (np.isfinite(self.alpha) and 0 <= self.alpha <= 1):
-            raise ValueError(f"alpha must lie in [0, 1], got {self.alpha}")
-        if not (np.isfinite(self.ior) and self.ior > 0):
-            raise ValueError(f"ior must be positive, got {self.ior}")
 
 
 def _alpha(alpha) -> np.ndarray:

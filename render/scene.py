@@ -21,7 +21,8 @@ import numpy as np
 import trimesh
 
 __all__ = [
-    "Lambertian", "Mirror", "Dielectric", "Emissive", "Material",
+    "Lambertian", "Mirror", "Dielectric", "Emissive", "DiffuseEmitter", "RoughConductor", "RoughDielectric",
+    "ALPHA_SMOOTH", "Material",
     "PointLight", "SpotLight", "DirectionalLight", "Light", "Medium",
     "SceneObject", "Scene", "spot_falloff",
 ]
@@ -91,7 +92,65 @@ class Emissive:
         self.radiance = _rgb(self.radiance, "radiance")
 
 
-Material = Lambertian | Mirror | Dielectric | Emissive
+class DiffuseEmitter(Lambertian):
+    """A Lambertian surface that also emits ``radiance`` (3,) (front side, or both if two_sided).
+
+    The scene model's :class:`render.scene.Emissive` reflects nothing; this one reflects like
+    a Lambertian of ``albedo`` and emits, which the white-furnace closed form needs. Renderers
+    other than the path tracer see it as a plain Lambertian (it subclasses one).
+    """
+
+    def __init__(self, albedo=0.8, radiance=1.0, two_sided: bool = False, texture=None):
+        super().__init__(albedo=albedo, texture=texture)
+        r = np.asarray(radiance, dtype=np.float64).reshape(-1)
+        r = np.repeat(r, 3) if r.size == 1 else r
+        if r.shape != (3,) or not np.all(np.isfinite(r)) or np.any(r < 0):
+            raise ValueError(f"radiance must be three finite non-negative numbers, got {radiance!r}")
+        self.radiance = r
+        self.two_sided = bool(two_sided)
+
+
+#: GGX roughness below which a rough material is smooth (pbrt's EffectivelySmooth): sampled as a
+#: delta lobe by render.microfacet, and specular in render.effects
+ALPHA_SMOOTH = 1e-3
+
+
+@dataclass
+class RoughConductor:
+    """A metal: GGX roughness ``alpha`` in [0, 1] and complex IOR ``eta + i k`` per RGB channel.
+
+    Defaults: gold-ish (pbrt's Au at R, G, B). alpha < ALPHA_SMOOTH is a perfect mirror with
+    the conductor's Fresnel reflectance.
+    """
+
+    alpha: float = 0.2
+    eta: np.ndarray = field(default_factory=lambda: np.array([0.143, 0.374, 1.442]))
+    k: np.ndarray = field(default_factory=lambda: np.array([3.983, 2.385, 1.603]))
+
+    def __post_init__(self):
+        self.eta = _rgb(self.eta, "eta")
+        self.k = _rgb(self.k, "k")
+        if not (np.isfinite(self.alpha) and 0 <= self.alpha <= 1):
+            raise ValueError(f"alpha must lie in [0, 1], got {self.alpha}")
+        if np.any(self.eta <= 0):
+            raise ValueError(f"eta must be positive, got {self.eta.tolist()}")
+
+
+@dataclass
+class RoughDielectric:
+    """Frosted glass: GGX roughness ``alpha`` in [0, 1], index of refraction ``ior`` (outside 1)."""
+
+    alpha: float = 0.2
+    ior: float = 1.5
+
+    def __post_init__(self):
+        if not (np.isfinite(self.alpha) and 0 <= self.alpha <= 1):
+            raise ValueError(f"alpha must lie in [0, 1], got {self.alpha}")
+        if not (np.isfinite(self.ior) and self.ior > 0):
+            raise ValueError(f"ior must be positive, got {self.ior}")
+
+
+Material = Lambertian | Mirror | Dielectric | Emissive | RoughConductor | RoughDielectric
 
 
 @dataclass

@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 
 from render.camera import Camera
-from render.microfacet import RoughConductor, RoughDielectric
+from render.scene import RoughConductor, RoughDielectric
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight,
                           Scene, SceneObject, SpotLight)
 

@@ -1,15 +1,13 @@
 """Capture: render every view of a scene with the renderer its effects call for.
 
 The rasterizer (:mod:`rig.raster`) is used when it simulates every effect of the scene exactly;
-otherwise the path tracer (:mod:`render.pathtracer`). Sensor effects (:mod:`rig.sensor`) are
+otherwise the path tracer (:mod:`render.integrators`). Sensor effects (:mod:`rig.sensor`) are
 applied to the linear image afterwards, only when the spec asks for them. Nothing here knows
 the artifact layout: views are yielded and the pipeline writes them.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator
-
 import numpy as np
 
 from render.camera import Camera, Intrinsics
@@ -18,7 +16,7 @@ from render.scene import DirectionalLight, PointLight, SpotLight
 
 from .build import RigScene
 
-__all__ = ["CapturedView", "CapturePlan", "plan_capture", "capture_views", "capture_list", "check_capture",
+__all__ = ["CapturedView", "CapturePlan", "plan_capture", "capture_list", "check_capture",
            "render_ideal", "finish_view", "sensor_config", "CaptureError", "CAPTURE_SPP"]
 
 
@@ -93,10 +91,10 @@ def check_capture(rig: RigScene, plan: CapturePlan) -> None:
     """CaptureError when the path tracer has no integrator for a path-traced plan's effects."""
     if plan.renderer == "raster":
         return
-    from render import pathtracer
+    from render import integrators
 
     try:
-        pathtracer.choose_integrator(plan.effects - frozenset(SENSOR_EFFECTS), "auto", _has_delta_lights(rig))
+        integrators.choose_integrator(plan.effects - frozenset(SENSOR_EFFECTS), "auto", _has_delta_lights(rig))
     except ValueError as exc:
         raise CaptureError(f"scene '{rig.scene.name}': {exc}") from None
 
@@ -107,17 +105,17 @@ def render_ideal(scene, plan: CapturePlan, cam: Camera, renderer, seed: int = 0,
 
     renderer: for a ``raster`` plan anything with ``render(camera) -> rig.raster.RasterFrame``
     (a :class:`rig.raster.RasterRenderer` of the view's size); for a path-traced plan the scene's
-    :class:`render.pathtracer.PreparedScene`. threads: path tracer threads (never change the
+    :class:`render.integrators.PreparedScene`. threads: path tracer threads (never change the
     result)."""
     ideal = Camera(_ideal(cam.intrinsics), cam.cam_to_world, cam.name)
     if plan.renderer == "raster":
         frame = renderer.render(ideal)
         return frame.rgb, frame.depth, frame.mask
-    from render import pathtracer
+    from render import integrators
     from render.gbuffer import first_hit_buffers
 
-    settings = pathtracer.RenderSettings(integrator="auto", spp=spp, seed=seed, threads=threads)
-    result = pathtracer.render(scene, ideal, settings, effects=plan.effects - frozenset(SENSOR_EFFECTS),
+    settings = integrators.RenderSettings(integrator="auto", spp=spp, seed=seed, threads=threads)
+    result = integrators.render(scene, ideal, settings, effects=plan.effects - frozenset(SENSOR_EFFECTS),
                                prepared=renderer)
     depth, mask = first_hit_buffers(scene, ideal, renderer.accel)
     return result.mean, depth, mask
@@ -135,35 +133,3 @@ def finish_view(cam: Camera, split: str, index: int, seed: int, config, rgb: np.
         depth = distort_map(depth, cam.intrinsics, "nearest")
         mask = distort_map(mask.astype(np.uint8), cam.intrinsics, "nearest").astype(bool)
     return CapturedView(cam, split, rgb.astype(np.float32), depth.astype(np.float32), mask)
-
-
-def capture_views(rig: RigScene, seed: int = 0, splits: tuple[str, ...] = ("train", "test"),
-                  spp: int = CAPTURE_SPP) -> Iterator[CapturedView]:
-    """Render the cameras of ``splits`` (those the scene has) in order, in this process;
-    deterministic in ``seed``.
-
-    Each view's sensor noise uses its own generator seeded by (seed, view index), so any subset
-    of views reproduces the same bytes, and each view is a pure function of (scene, plan,
-    camera, index, seed): ``render_ideal`` then ``finish_view``, which is how the pipeline runs
-    one view per unit of work on other processes.
-    """
-    plan = plan_capture(rig)
-    views = capture_list(rig, splits)
-    check_capture(rig, plan)
-    config = sensor_config(rig)
-    if plan.renderer == "raster":
-        from .raster import RasterRenderer
-
-        k = views[0][1].intrinsics
-        renderer = RasterRenderer(rig.scene, k.width, k.height)
-        close = renderer.close
-    else:
-        from render import pathtracer
-
-        renderer, close = pathtracer.prepare(rig.scene), (lambda: None)
-    try:
-        for index, (split, cam) in enumerate(views):
-            rgb, depth, mask = render_ideal(rig.scene, plan, cam, renderer, seed, spp)
-            yield finish_view(cam, split, index, seed, config, rgb, depth, mask)
-    finally:
-        close()

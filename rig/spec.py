@@ -291,7 +291,7 @@ class EmissiveSpec(_Strict):
 
 
 class RoughConductorSpec(_Strict):
-    """GGX metal (render.microfacet.RoughConductor): roughness alpha, complex IOR eta + i k per RGB."""
+    """GGX metal (render.scene.RoughConductor): roughness alpha, complex IOR eta + i k per RGB."""
     type: Literal["rough_conductor"]
     alpha: Real = Field(0.2, ge=0, le=1)
     eta: Rgb = (0.143, 0.374, 1.442)
@@ -309,7 +309,7 @@ class RoughConductorSpec(_Strict):
 
 
 class RoughDielectricSpec(_Strict):
-    """GGX frosted glass (render.microfacet.RoughDielectric)."""
+    """GGX frosted glass (render.scene.RoughDielectric)."""
     type: Literal["rough_dielectric"]
     alpha: Real = Field(0.2, ge=0, le=1)
     ior: Real = Field(1.5, gt=0)

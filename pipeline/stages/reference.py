@@ -12,7 +12,7 @@ View names match the capture's, so any two stages' images of a view pair up by n
 Views (``--views``): auto (the default) renders the held-out ``test`` views when the scene has
 them, else its ``scene`` camera; test, all (train + test) and scene choose explicitly.
 
-A view is rendered in fixed units of work (render.pathtracer.work_units): batches of
+A view is rendered in fixed units of work (render.integrators.work_units): batches of
 SAMPLE_BATCH samples, or for sppm and pssmlt their independent groups of passes / chains. Their
 film moments are summed by a left fold in sample order (as render.film.merge_results does), so
 the result does not depend on where or in how many processes the units ran: byte-identical
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from render import pathtracer
+from render import integrators
 from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
 from render.film import Film, merge_stats
@@ -136,15 +136,15 @@ def check_fits(chosen: list[tuple[str, Camera]], size: tuple[int, int] | None, w
                    f"{fit:.0f} megapixels per view fit{'' if size is not None else ' (pass a smaller --size)'}")
 
 
-def render_batch(scene, scene_key: str, cam: Camera, settings: pathtracer.RenderSettings,
+def render_batch(scene, scene_key: str, cam: Camera, settings: integrators.RenderSettings,
                  sample_range: tuple[int, int], effects: frozenset) -> tuple[Film, dict]:
     """One unit of work: the film moments of ``sample_range`` of ``cam``'s view, and its stats.
 
     Runs wherever the engine puts it; the scene's BVH is built once per process (keyed by
     ``scene_key``, unique per run) and reused across batches and views."""
     threads = settings.threads  # the BVH's query threads too: a task uses no more cores than it was given
-    prepared = worker_cache(f"{scene_key}-{threads}", lambda: pathtracer.prepare(scene, threads=threads))
-    result = pathtracer.render(scene, cam, settings, sample_range, effects, prepared)
+    prepared = worker_cache(f"{scene_key}-{threads}", lambda: integrators.prepare(scene, threads=threads))
+    result = integrators.render(scene, cam, settings, sample_range, effects, prepared)
     return result.film, result.stats
 
 
@@ -182,13 +182,13 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         chosen = [(s, resize_camera(c, *size)) for s, c in chosen]
     check_fits(chosen, size, _workers_here(cluster), available_memory())
     try:
-        settings = pathtracer.RenderSettings(integrator=integrator, spp=spp, seed=seed, max_depth=max_depth)
+        settings = integrators.RenderSettings(integrator=integrator, spp=spp, seed=seed, max_depth=max_depth)
     except ValueError as exc:
         raise BadInput(f"--integrator/--max-depth: {exc}") from None
     from render.effects import scene_effects
 
     effects = frozenset(scene_effects(rig.scene))
-    prepared = pathtracer.prepare(rig.scene)
+    prepared = integrators.prepare(rig.scene)
     try:
         chosen_integrator = prepared.choose(effects, integrator)
     except ValueError as exc:
@@ -199,7 +199,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, siz
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)
-    batches = pathtracer.work_units(chosen_integrator, spp, SAMPLE_BATCH)  # spp <= MAX_SPP: a bounded list
+    batches = integrators.work_units(chosen_integrator, spp, SAMPLE_BATCH)  # spp <= MAX_SPP: a bounded list
     manifest.params["units_per_view"] = len(batches)
     per_view, totals = {}, {}
     with atomic_stage(out, "reference", overwrite) as tmp, engine(cluster, quiet) as eng, progress_bar(quiet) as bar:

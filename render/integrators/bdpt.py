@@ -40,7 +40,7 @@ are not scaled (pbrt's TransportMode::Importance; Veach 1997, section 5.2). Shad
 geometric normals, so no shading-normal correction applies. Only Lambertian vertices are joined
 (the delta BSDFs' f is zero for every given direction).
 
-Path length: max_depth counts scattering events as in :mod:`render.pathtracer`: a full path
+Path length: max_depth counts scattering events as in :mod:`render.integrators.path`: a full path
 of s + t vertices has s + t - 2 bounces and is kept iff that is <= max_depth (eye subpaths have
 up to max_depth + 2 vertices with the pinhole, light subpaths max_depth + 1). Russian roulette
 on subpath extension, when leaving a surface vertex of index >= rr_depth (0 = the first hit):
@@ -71,14 +71,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .accel import spawn_origin
-from .bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
-from .camera import Camera
-from .film import Film, RenderResult
-from .lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
-from .sampling import INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from ..accel import spawn_origin
+from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
+from ..camera import Camera
+from ..film import Film, RenderResult
+from ..lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
+from ..sampling import INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from .prepared import PreparedScene, prepare
+from .settings import RenderSettings, check_heuristic, heuristic_exponent, parse_sample_range
 
-__all__ = ["render_bdpt", "render_result"]
+__all__ = ["Options", "render_bdpt", "render_result"]
 
 # how a density leaving a vertex converts to an area density at the previous one
 _SURF, _POINTLIKE, _INFINITE = 0, 1, 2
@@ -91,6 +93,24 @@ _EYE_DIM0, _EYE_STEP, _LIGHT_DIM0, _LIGHT_STEP = 2, 8, 6, 4
 _CLAMP = 1e150  # density ratios are clamped to [1 / _CLAMP, _CLAMP] before the heuristic's power
 _BIG = 1e300
 _DEFAULT_BATCH = 1 << 14
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``bdpt`` (RenderSettings fields of the same names; no ``strategy``: every (s, t)
+    strategy is always MIS-weighted)."""
+
+    #: Russian roulette on subpath extension, when leaving vertices of index >= rr_depth
+    roulette: bool = True
+    #: first vertex index (0: the first hit) whose extension roulette may end
+    rr_depth: int = 3
+    #: MIS weights over the (s, t) strategies: "power" or "balance" (pbrt's BDPT weights)
+    heuristic: str = "power"
+
+    def __post_init__(self):
+        check_heuristic(self.heuristic)
+        if self.rr_depth < 0:
+            raise ValueError(f"bdpt: rr_depth must be >= 0, got {self.rr_depth}")
 
 
 def _check_supported(scene, mats, camera: Camera) -> None:
@@ -133,7 +153,7 @@ class _Subpaths:
 
 @dataclass
 class _Ctx:
-    ps: object  # render.pathtracer.PreparedScene
+    ps: PreparedScene
     camera: Camera
     max_depth: int
     roulette: bool
@@ -317,51 +337,109 @@ def _walk(ctx: _Ctx, sub: _Subpaths, paths, o, d, beta, pdf_dir, prev_p, prev_n,
 
 
 # ---------------------------------------------------------------- one batch of passes
-def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pix1: int) -> np.ndarray:
-    """Passes sample0 .. sample0 + n_pass - 1 over pixels [pix0, pix1) (all pixels when n_pass > 1).
-    Returns (n_pass * H * W, 3) float64: the passes' images (eye contributions + splats)."""
-    ps, cam = ctx.ps, ctx.camera
-    geom, mats, lights = ps.geom, ps.mats, ps.lights
-    extent = geom.extent
-    k = cam.intrinsics
-    W, H = k.width, k.height
-    npix = W * H
+@dataclass
+class _Batch:
+    """One batch of camera samples: passes sample0 .. of pixels [pix0, pix1), N = n_pass x pixels.
+
+    pixel, sample, pass_local: (N,) int64 per camera sample; keys_e / keys_l: (N,) uint64 hash
+    keys of its eye and light subpaths; tgt_eye: (N,) its slot in the batch's images (pass_local
+    x H W + pixel). A: the image's area on the plane z = 1; centre, fwd_axis: the pinhole and
+    its optical axis (world)."""
+
+    n_pass: int
+    N: int
+    W: int
+    H: int
+    pixel: np.ndarray
+    sample: np.ndarray
+    pass_local: np.ndarray
+    keys_e: np.ndarray
+    keys_l: np.ndarray
+    tgt_eye: np.ndarray
+    A: float
+    centre: np.ndarray
+    fwd_axis: np.ndarray
+
+    @property
+    def npix(self) -> int:
+        return self.W * self.H
+
+
+class _Joins:
+    """The contributions of a batch's strategies: those needing no shadow ray (s = 0) and those
+    behind one (origin, unit direction, tmax), each with its image slot and value (K, 3)."""
+
+    def __init__(self):
+        self.direct_t, self.direct_v = [], []
+        self.sh_o, self.sh_d, self.sh_t, self.sh_tgt, self.sh_v = [], [], [], [], []
+
+    def add(self, tgt: np.ndarray, val: np.ndarray) -> None:
+        self.direct_t.append(tgt)
+        self.direct_v.append(val)
+
+    def shadow(self, o, d, t, tgt, val) -> None:
+        self.sh_o.append(o), self.sh_d.append(d), self.sh_t.append(t), self.sh_tgt.append(tgt), self.sh_v.append(val)
+
+    def image(self, ctx: _Ctx, size: int) -> np.ndarray:
+        """(size, 3) float64: every unoccluded contribution summed into its slot (one occlusion
+        query for all shadow rays)."""
+        img = np.zeros((size, 3))
+        tg, vals = list(self.direct_t), list(self.direct_v)
+        if self.sh_o:
+            so, sd, st = np.concatenate(self.sh_o), np.concatenate(self.sh_d), np.concatenate(self.sh_t)
+            vis = ~ctx.ps.accel.occluded(so, sd, np.maximum(st, 0.0))
+            ctx.rays += len(so)
+            tg.append(np.concatenate(self.sh_tgt)[vis])
+            vals.append(np.concatenate(self.sh_v)[vis])
+        if tg:
+            tgc = np.concatenate(tg)
+            vc = np.concatenate(vals)
+            for c in range(3):
+                img[:, c] = np.bincount(tgc, weights=vc[:, c], minlength=size)
+        return img
+
+
+def _batch(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pix1: int) -> _Batch:
+    k = ctx.camera.intrinsics
     npc = pix1 - pix0
     N = n_pass * npc
     flat = np.arange(N)
     pass_local = flat // npc
     pixel = pix0 + flat % npc
     sample = sample0 + pass_local
-    keys_e = path_keys(seed, pixel, sample)
-    keys_l = path_keys(seed, pixel + _LIGHT_STREAM, sample)
-    tgt_eye = pass_local * npix + pixel
-    md = ctx.max_depth
-    VE, VL = md + 2, md + 1
-    A = W * H / (k.fx * k.fy)  # image area on the plane z = 1
-    centre = cam.cam_to_world[:3, 3].copy()
-    fwd_axis = cam.cam_to_world[:3, 2]
-    hexp = ctx.hexp
-    weighted = ctx.only is None
+    c2w = ctx.camera.cam_to_world
+    return _Batch(n_pass, N, k.width, k.height, pixel, sample, pass_local, path_keys(seed, pixel, sample),
+                  path_keys(seed, pixel + _LIGHT_STREAM, sample), pass_local * k.width * k.height + pixel,
+                  k.width * k.height / (k.fx * k.fy), c2w[:3, 3].copy(), c2w[:3, 2])
 
-    # ---- eye subpaths
-    E = _Subpaths(VE, N)
+
+def _eye_subpaths(ctx: _Ctx, b: _Batch) -> tuple[_Subpaths, list]:
+    """The batch's eye subpaths (vertex 0 the pinhole) and their escaping rays (see :func:`_walk`)."""
+    N = b.N
+    E = _Subpaths(ctx.max_depth + 2, N)
     E.alive[0] = True
-    E.p[0] = centre
+    E.p[0] = b.centre
     E.fwd[0] = 1.0
-    u = uniform_block(keys_e, 0, 2)
-    jit = np.stack([pixel % W + u[:, 0], pixel // W + u[:, 1]], axis=1)
-    o, d = cam.pixel_rays(jit)
-    cos0 = d @ fwd_axis
+    u = uniform_block(b.keys_e, 0, 2)
+    jit = np.stack([b.pixel % b.W + u[:, 0], b.pixel // b.W + u[:, 1]], axis=1)
+    o, d = ctx.camera.pixel_rays(jit)
+    cos0 = d @ b.fwd_axis
     escapes = []
-    _walk(ctx, E, flat, o, d, np.ones((N, 3)), 1.0 / (A * cos0 ** 3), o, np.zeros((N, 3)),
-          np.full(N, _POINTLIKE), keys_e, False, escapes)
+    _walk(ctx, E, np.arange(N), o, d, np.ones((N, 3)), 1.0 / (b.A * cos0 ** 3), o, np.zeros((N, 3)),
+          np.full(N, _POINTLIKE), b.keys_e, False, escapes)
+    return E, escapes
 
-    # ---- light subpaths
-    L = _Subpaths(VL, N)
+
+def _light_subpaths(ctx: _Ctx, b: _Batch) -> tuple[_Subpaths, np.ndarray]:
+    """The batch's light subpaths (vertex 0 on a light, :func:`render.lights.sample_emission`)
+    and (N,) whether each started on a delta (point, spot, directional) light."""
+    ps = ctx.ps
+    N = b.N
+    L = _Subpaths(ctx.max_depth + 1, N)
     lkind = np.full(N, AREA, np.int64)
-    if not lights.empty:
-        u = uniform_block(keys_l, 0, 6)
-        es = sample_emission(lights, geom, u[:, 0], u[:, 1:3], u[:, 3:5], u[:, 5])
+    if not ps.lights.empty:
+        u = uniform_block(b.keys_l, 0, 6)
+        es = sample_emission(ps.lights, ps.geom, u[:, 0], u[:, 1:3], u[:, 3:5], u[:, 5])
         lkind = es.kind
         live = np.nonzero(max3(es.flux) > 0)[0]
         dirl = es.kind == DIRECTIONAL
@@ -371,26 +449,20 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
         mode = np.where(es.kind == AREA, _SURF, np.where(dirl, _INFINITE, _POINTLIKE))
         pdf_dir = np.where(dirl, es.pdf_pos, es.pdf_dir)
         _walk(ctx, L, live, es.o[live], es.d[live], es.flux[live], pdf_dir[live], es.p[live], es.normal[live],
-              mode[live], keys_l, True, [])
-    delta_light = lkind != AREA
+              mode[live], b.keys_l, True, [])
+    return L, lkind != AREA
 
-    _prefix(E, hexp, None)
-    _prefix(L, hexp, ~delta_light)
 
-    direct_t, direct_v = [], []  # contributions needing no shadow ray
-    sh_o, sh_d, sh_t, sh_tgt, sh_v = [], [], [], [], []
-
-    def shadow(o_, d_, t_, tgt, val):
-        sh_o.append(o_), sh_d.append(d_), sh_t.append(t_), sh_tgt.append(tgt), sh_v.append(val)
-
-    # ---- s = 0: escaping eye rays (background) and eye subpaths hitting emitters
+def _connect_s0(ctx: _Ctx, b: _Batch, E: _Subpaths, escapes: list, joins: _Joins) -> None:
+    """s = 0: escaping eye rays (the background: their only strategy) and eye subpaths hitting emitters."""
+    ps, hexp = ctx.ps, ctx.hexp
+    mats, lights = ps.mats, ps.lights
     for paths, beta, i in escapes:  # the ray leaving z_i escaped: strategy (0, i + 2), the only one
         if not ctx.use(0, i + 2):
             continue
         keep = np.ones(len(paths), bool) if ctx.caustics else ~E.caus[i, paths]
-        direct_t.append(tgt_eye[paths[keep]])
-        direct_v.append(beta[keep] * ps.background)
-    for t in range(2, VE + 1):
+        joins.add(b.tgt_eye[paths[keep]], beta[keep] * ps.background)
+    for t in range(2, E.nv + 1):
         i = t - 1
         if not ctx.use(0, t):
             continue
@@ -406,87 +478,105 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
         front = two | (cos_e > 0)
         kk, obj, cos_e, two = kk[front], obj[front], cos_e[front], two[front]
         C = E.beta[i, kk] * mats.Le[obj]
-        if weighted and t > 2:
+        if ctx.only is None and t > 2:
             pt_rev = lights.tri_pdf_area[E.tri[i, kk]]
             ptm_rev = np.abs(cos_e) * INV_PI * np.where(two, 0.5, 1.0) * E.conv[i, kk]
             es_ = _eye_sum(E, t, kk, _ratio(pt_rev, E.fwd[i, kk], hexp), _ratio(ptm_rev, E.fwd[i - 1, kk], hexp))
             C = C / (1.0 + es_)[:, None]
-        direct_t.append(tgt_eye[kk])
-        direct_v.append(C)
+        joins.add(b.tgt_eye[kk], C)
 
-    # ---- s = 1: next-event estimation at z_{t-1}
-    if not lights.empty:
-        for t in range(2, md + 2):
-            i = t - 1
-            if not ctx.use(1, t):
-                continue
-            sel = E.alive[i] & (E.kind[i] == LAMBERT)
-            if not ctx.caustics:
-                sel &= ~E.caus[i]
-            kk = np.nonzero(sel)[0]
-            if len(kk) == 0:
-                continue
-            u = uniform_block(keys_e[kk], _EYE_DIM0 + _EYE_STEP * (i - 1) + 4, 3)
-            p = E.p[i, kk]
-            ls = lights.sample(p, u[:, 0], u[:, 1:3])
-            f, cos_p, pdf_l, pdf_r = _lambert(E, i, kk, ls.wi)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                C = E.beta[i, kk] * f * ls.Li * (cos_p / ls.pdf)[:, None]
-            ok = ls.valid & (cos_p > 0) & (ls.pdf > 0) & np.isfinite(ls.pdf)
-            ok &= np.all(np.isfinite(C), axis=1) & (max3(np.where(ok[:, None], C, 0.0)) > 0)
-            m = np.nonzero(ok)[0]
-            if len(m) == 0:
-                continue
-            kk, p, C, cos_p, pdf_l, pdf_r = kk[m], p[m], C[m], cos_p[m], pdf_l[m], pdf_r[m]
-            wi, dist = ls.wi[m], ls.dist[m]
-            ent = np.minimum(np.searchsorted(lights.cdf, u[m, 0] * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
-            is_area = ent < lights.n_area
-            finite = np.isfinite(dist)
-            dist_f = np.where(finite, dist, 1.0)
-            d2 = dist_f * dist_f
-            ln = np.zeros((len(m), 3))  # the light point's normal (area), for the offset and the densities
-            if weighted or is_area.any():
-                a = np.nonzero(is_area)[0]
-                ln[a] = lights.a_normal[ent[a]]
-            if weighted:
-                # the sampled light vertex: its density (pdfFwd), its emission density towards z_{t-1}
-                fwd_q = np.zeros(len(m))
-                pdir = np.zeros(len(m))
-                conv_q = np.where(finite, 1.0 / d2, 1.0)
-                a = np.nonzero(is_area)[0]
-                if len(a):
-                    ja = ent[a]
-                    cos_l = np.abs(dot3(wi[a], ln[a]))
-                    fwd_q[a] = lights.a_pdf_area[ja]
-                    pdir[a] = cos_l * INV_PI * np.where(lights.two_sided[ja], 0.5, 1.0)
-                    conv_q[a] = cos_l / d2[a]
-                dl = np.nonzero(~is_area)[0]
-                if len(dl):
-                    li = ent[dl] - lights.n_area
-                    lk = lights.d_kind[li]
-                    fwd_q[dl] = np.where(lk == DIRECTIONAL, 0.0, lights.pmf[ent[dl]])
-                    co = lights.d_cos[li, 1]
-                    inside = -dot3(wi[dl], lights.d_dir[li]) >= co
-                    pdir[dl] = np.where(lk == POINT, 0.25 * INV_PI,
-                                        np.where(lk == SPOT, inside / (2.0 * np.pi * np.maximum(1.0 - co, 1e-300)),
-                                                 1.0 / (np.pi * ctx.radius ** 2)))
-                pt_rev = pdir * cos_p * np.where(finite, 1.0 / d2, 1.0)
-                qs_rev = pdf_l * conv_q
-                r1 = _ratio(pt_rev, E.fwd[i, kk], hexp)
-                r2 = _ratio(pdf_r * E.conv[i, kk], E.fwd[i - 1, kk], hexp)
-                tot = _eye_sum(E, t, kk, r1, r2) + _light_sum(L, 1, kk, _ratio(qs_rev, fwd_q, hexp), None, is_area)
-                C = C / (1.0 + tot)[:, None]
-            o_ = spawn_origin(p, E.ng[i, kk], wi, extent)
-            tgt_p = p + wi * dist_f[:, None]
-            tgt_p = np.where(is_area[:, None], spawn_origin(tgt_p, ln, -wi, extent), tgt_p)
-            v = tgt_p - o_
-            dd = np.linalg.norm(v, axis=1)
-            dirs = np.where(finite[:, None], v / np.maximum(dd, 1e-300)[:, None], wi)
-            tmax = np.where(finite, dd * (1.0 - 1e-6), 3e38)
-            shadow(o_, dirs, tmax, tgt_eye[kk], C)
 
-    # ---- t = 1: light tracing, y_{s-1} joined to the pinhole and splatted
-    for s in range(2, VL + 1):
+def _light_vertex_densities(ctx: _Ctx, wi, ln, ent, is_area, finite, d2):
+    """For s = 1: the sampled light vertex's own density (pbrt's pdfFwd), the density of its
+    emission towards z_{t-1} (solid angle), and the factor converting a solid-angle density
+    leaving z_{t-1} into an area density at the light vertex. (K,) each."""
+    lights = ctx.ps.lights
+    m = len(wi)
+    fwd_q = np.zeros(m)
+    pdir = np.zeros(m)
+    conv_q = np.where(finite, 1.0 / d2, 1.0)
+    a = np.nonzero(is_area)[0]
+    if len(a):
+        ja = ent[a]
+        cos_l = np.abs(dot3(wi[a], ln[a]))
+        fwd_q[a] = lights.a_pdf_area[ja]
+        pdir[a] = cos_l * INV_PI * np.where(lights.two_sided[ja], 0.5, 1.0)
+        conv_q[a] = cos_l / d2[a]
+    dl = np.nonzero(~is_area)[0]
+    if len(dl):
+        li = ent[dl] - lights.n_area
+        lk = lights.d_kind[li]
+        fwd_q[dl] = np.where(lk == DIRECTIONAL, 0.0, lights.pmf[ent[dl]])
+        co = lights.d_cos[li, 1]
+        inside = -dot3(wi[dl], lights.d_dir[li]) >= co
+        pdir[dl] = np.where(lk == POINT, 0.25 * INV_PI,
+                            np.where(lk == SPOT, inside / (2.0 * np.pi * np.maximum(1.0 - co, 1e-300)),
+                                     1.0 / (np.pi * ctx.radius ** 2)))
+    return fwd_q, pdir, conv_q
+
+
+def _connect_s1(ctx: _Ctx, b: _Batch, E: _Subpaths, L: _Subpaths, joins: _Joins) -> None:
+    """s = 1: next-event estimation at z_{t-1}: a fresh light sample joined by a shadow ray."""
+    ps, hexp = ctx.ps, ctx.hexp
+    lights, extent = ps.lights, ps.geom.extent
+    weighted = ctx.only is None
+    if lights.empty:
+        return
+    for t in range(2, ctx.max_depth + 2):
+        i = t - 1
+        if not ctx.use(1, t):
+            continue
+        sel = E.alive[i] & (E.kind[i] == LAMBERT)
+        if not ctx.caustics:
+            sel &= ~E.caus[i]
+        kk = np.nonzero(sel)[0]
+        if len(kk) == 0:
+            continue
+        u = uniform_block(b.keys_e[kk], _EYE_DIM0 + _EYE_STEP * (i - 1) + 4, 3)
+        p = E.p[i, kk]
+        ls = lights.sample(p, u[:, 0], u[:, 1:3])
+        f, cos_p, pdf_l, pdf_r = _lambert(E, i, kk, ls.wi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            C = E.beta[i, kk] * f * ls.Li * (cos_p / ls.pdf)[:, None]
+        ok = ls.valid & (cos_p > 0) & (ls.pdf > 0) & np.isfinite(ls.pdf)
+        ok &= np.all(np.isfinite(C), axis=1) & (max3(np.where(ok[:, None], C, 0.0)) > 0)
+        m = np.nonzero(ok)[0]
+        if len(m) == 0:
+            continue
+        kk, p, C, cos_p, pdf_l, pdf_r = kk[m], p[m], C[m], cos_p[m], pdf_l[m], pdf_r[m]
+        wi, dist = ls.wi[m], ls.dist[m]
+        ent = np.minimum(np.searchsorted(lights.cdf, u[m, 0] * lights.cdf[-1], side="right"), len(lights.pmf) - 1)
+        is_area = ent < lights.n_area
+        finite = np.isfinite(dist)
+        dist_f = np.where(finite, dist, 1.0)
+        d2 = dist_f * dist_f
+        ln = np.zeros((len(m), 3))  # the light point's normal (area), for the offset and the densities
+        if weighted or is_area.any():
+            a = np.nonzero(is_area)[0]
+            ln[a] = lights.a_normal[ent[a]]
+        if weighted:
+            fwd_q, pdir, conv_q = _light_vertex_densities(ctx, wi, ln, ent, is_area, finite, d2)
+            pt_rev = pdir * cos_p * np.where(finite, 1.0 / d2, 1.0)
+            qs_rev = pdf_l * conv_q
+            r1 = _ratio(pt_rev, E.fwd[i, kk], hexp)
+            r2 = _ratio(pdf_r * E.conv[i, kk], E.fwd[i - 1, kk], hexp)
+            tot = _eye_sum(E, t, kk, r1, r2) + _light_sum(L, 1, kk, _ratio(qs_rev, fwd_q, hexp), None, is_area)
+            C = C / (1.0 + tot)[:, None]
+        o_ = spawn_origin(p, E.ng[i, kk], wi, extent)
+        tgt_p = p + wi * dist_f[:, None]
+        tgt_p = np.where(is_area[:, None], spawn_origin(tgt_p, ln, -wi, extent), tgt_p)
+        v = tgt_p - o_
+        dd = np.linalg.norm(v, axis=1)
+        dirs = np.where(finite[:, None], v / np.maximum(dd, 1e-300)[:, None], wi)
+        tmax = np.where(finite, dd * (1.0 - 1e-6), 3e38)
+        joins.shadow(o_, dirs, tmax, b.tgt_eye[kk], C)
+
+
+def _connect_t1(ctx: _Ctx, b: _Batch, L: _Subpaths, joins: _Joins) -> None:
+    """t = 1: light tracing: y_{s-1} joined to the pinhole and splatted to the pixel it projects to."""
+    cam, hexp = ctx.camera, ctx.hexp
+    W, H, A, centre = b.W, b.H, b.A, b.centre
+    for s in range(2, L.nv + 1):
         j = s - 1
         if not ctx.use(s, 1):
             continue
@@ -518,20 +608,23 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
         if len(m) == 0:
             continue
         kk, q, uv, C, cos_q, pdf_r, d2, wn = kk[m], q[m], uv[m], C[m], cos_q[m], pdf_r[m], d2[m], wn[m]
-        if weighted:
+        if ctx.only is None:
             r1 = _ratio(pdf_cam[m] * cos_q / d2, L.fwd[j, kk], hexp)
             r2 = _ratio(pdf_r * L.conv[j, kk], L.fwd[j - 1, kk], hexp)
             C = C / (1.0 + _light_sum(L, s, kk, r1, r2))[:, None]
         px = np.minimum(np.floor(uv[:, 0]).astype(np.int64), W - 1)
         py = np.minimum(np.floor(uv[:, 1]).astype(np.int64), H - 1)
-        o_, d_, t_ = _segment(q, L.ng[j, kk], np.broadcast_to(centre, q.shape), None, extent)
-        shadow(o_, d_, t_, pass_local[kk] * npix + py * W + px, C)
+        o_, d_, t_ = _segment(q, L.ng[j, kk], np.broadcast_to(centre, q.shape), None, ctx.ps.geom.extent)
+        joins.shadow(o_, d_, t_, b.pass_local[kk] * b.npix + py * W + px, C)
 
-    # ---- s, t >= 2: join y_{s-1} and z_{t-1}
-    for t in range(2, VE + 1):
+
+def _connect_inner(ctx: _Ctx, b: _Batch, E: _Subpaths, L: _Subpaths, joins: _Joins) -> None:
+    """s, t >= 2: y_{s-1} and z_{t-1} joined by a shadow ray (f G f)."""
+    hexp, extent = ctx.hexp, ctx.ps.geom.extent
+    for t in range(2, E.nv + 1):
         i = t - 1
-        for s in range(2, VL + 1):
-            if s + t - 2 > md or not ctx.use(s, t):
+        for s in range(2, L.nv + 1):
+            if s + t - 2 > ctx.max_depth or not ctx.use(s, t):
                 continue
             j = s - 1
             sel = E.alive[i] & L.alive[j] & (E.kind[i] == LAMBERT) & (L.kind[j] == LAMBERT)
@@ -553,7 +646,7 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
             if len(m) == 0:
                 continue
             kk, q, p, C = kk[m], q[m], p[m], C[m]
-            if weighted:
+            if ctx.only is None:
                 cq, cp, dd2 = cos_q[m], cos_p[m], d2[m]
                 r1e = _ratio(pq_f[m] * cp / dd2, E.fwd[i, kk], hexp)
                 r2e = _ratio(pp_r[m] * E.conv[i, kk], E.fwd[i - 1, kk], hexp)
@@ -561,24 +654,26 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
                 r2l = _ratio(pq_r[m] * L.conv[j, kk], L.fwd[j - 1, kk], hexp)
                 C = C / (1.0 + _eye_sum(E, t, kk, r1e, r2e) + _light_sum(L, s, kk, r1l, r2l))[:, None]
             o_, d_, t_ = _segment(q, L.ng[j, kk], p, E.ng[i, kk], extent)
-            shadow(o_, d_, t_, tgt_eye[kk], C)
+            joins.shadow(o_, d_, t_, b.tgt_eye[kk], C)
 
-    # ---- visibility and accumulation
-    img = np.zeros((n_pass * npix, 3))
-    tg = list(direct_t)
-    vals = list(direct_v)
-    if sh_o:
-        so, sd, st = np.concatenate(sh_o), np.concatenate(sh_d), np.concatenate(sh_t)
-        vis = ~ps.accel.occluded(so, sd, np.maximum(st, 0.0))
-        ctx.rays += len(so)
-        tg.append(np.concatenate(sh_tgt)[vis])
-        vals.append(np.concatenate(sh_v)[vis])
-    if tg:
-        tgc = np.concatenate(tg)
-        vc = np.concatenate(vals)
-        for c in range(3):
-            img[:, c] = np.bincount(tgc, weights=vc[:, c], minlength=n_pass * npix)
-    return img
+
+def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pix1: int) -> np.ndarray:
+    """Passes sample0 .. sample0 + n_pass - 1 over pixels [pix0, pix1) (all pixels when n_pass > 1).
+    Returns (n_pass * H * W, 3) float64: the passes' images (eye contributions + splats).
+
+    Both subpaths are traced, then every strategy family is joined (pbrt's ConnectBDPT, one
+    family at a time over the whole batch): s = 0, s = 1, t = 1, s and t >= 2."""
+    b = _batch(ctx, seed, sample0, n_pass, pix0, pix1)
+    E, escapes = _eye_subpaths(ctx, b)
+    L, delta_light = _light_subpaths(ctx, b)
+    _prefix(E, ctx.hexp, None)
+    _prefix(L, ctx.hexp, ~delta_light)
+    joins = _Joins()
+    _connect_s0(ctx, b, E, escapes, joins)
+    _connect_s1(ctx, b, E, L, joins)
+    _connect_t1(ctx, b, L, joins)
+    _connect_inner(ctx, b, E, L, joins)
+    return joins.image(ctx, n_pass * b.npix)
 
 
 # ---------------------------------------------------------------- the integrator
@@ -591,7 +686,7 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
     spp: passes (one eye and one light subpath per pixel each) when no sample_range is given.
     sample_range: half-open range of pass indices [a, b) (renders of disjoint ranges merge).
     max_depth: maximum scattering events of a full path. seed: the render's seed.
-    prepared: a :class:`render.pathtracer.PreparedScene` to reuse. roulette, rr_depth: Russian
+    prepared: a :class:`PreparedScene` to reuse. roulette, rr_depth: Russian
     roulette on subpath extension. caustics: False drops caustic paths (module docstring).
     heuristic: "power" (default) or "balance". batch_paths: subpaths per wavefront batch (whole
     passes are batched together; a large image's pass is split over pixels); it does not change
@@ -603,12 +698,8 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
     Returns a :class:`render.film.RenderResult`: mean (H, W, 3) float32 and the variance of the
     mean from the per-pass images, integrator "bdpt", stats (time_s, paths, rays, passes).
     """
-    from .pathtracer import prepare
-
     t0 = time.perf_counter()
-    a, b = (0, int(spp)) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
-    if not 0 <= a < b:
-        raise ValueError(f"bdpt: sample_range must satisfy 0 <= start < stop, got {(a, b)}")
+    a, b = parse_sample_range(spp, sample_range, "bdpt")
     if int(max_depth) < 0 or int(rr_depth) < 0 or int(batch_paths) < 1:
         raise ValueError("bdpt: max_depth and rr_depth must be >= 0, batch_paths >= 1")
     if heuristic not in ("power", "balance"):
@@ -617,7 +708,7 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
     _check_supported(scene, ps.mats, camera)
     only = None if strategies is None else frozenset((int(s), int(t)) for s, t in strategies)
     ctx = _Ctx(ps, camera, int(max_depth), bool(roulette), int(rr_depth), bool(caustics),
-               2.0 if heuristic == "power" else 1.0, only, scene_bounds(ps.geom)[1])
+               heuristic_exponent(heuristic), only, scene_bounds(ps.geom)[1])
     k = camera.intrinsics
     npix = k.width * k.height
     film = Film(k.width, k.height)
@@ -646,14 +737,13 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
     return RenderResult.from_film(film, (a, b), "bdpt", stats)
 
 
-def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None) -> RenderResult:
-    """:func:`render_bdpt` as :func:`render.pathtracer.render` calls it (settings: a
-    :class:`render.pathtracer.RenderSettings`: spp (passes), max_depth, seed, roulette,
-    rr_depth, heuristic, batch_paths). Caustic paths are dropped when 'caustics' is not among
-    ``effects`` (None: kept)."""
-    caustics = True if effects is None else "caustics" in frozenset(effects)
-    # batches above 2^14 subpaths only cost memory (about 10 kB per subpath pair at max depth 8)
+def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
+                  effects: frozenset, prepared: PreparedScene, progress=None) -> RenderResult:
+    """:func:`render_bdpt` of passes [a, b) = ``sample_range`` (the registry's interface; progress
+    unused): settings.max_depth, seed, batch_paths (capped at 2^14 subpaths: larger batches only
+    cost memory, about 10 kB per subpath pair at max depth 8). Caustic paths are dropped when
+    'caustics' is not among ``effects``."""
     return render_bdpt(scene, camera, settings.spp, max_depth=settings.max_depth, seed=settings.seed,
-                       prepared=prepared, sample_range=sample_range, roulette=settings.roulette,
-                       rr_depth=settings.rr_depth, caustics=caustics, heuristic=settings.heuristic,
+                       prepared=prepared, sample_range=sample_range, roulette=options.roulette,
+                       rr_depth=options.rr_depth, caustics="caustics" in effects, heuristic=options.heuristic,
                        batch_paths=min(settings.batch_paths, _DEFAULT_BATCH))

@@ -1,6 +1,6 @@
 """Compiled (numba) wavefront kernels of the path tracer: one pass over the live paths per bounce.
 
-:mod:`render.pathtracer` drives the wavefront: Embree (through :class:`render.accel.Accel`)
+:mod:`render.integrators.path` drives the wavefront: Embree (through :class:`render.accel.Accel`)
 finds hits for a whole batch, then one kernel here shades every hit in a single loop (emission,
 next-event estimation, BSDF sampling, Russian roulette, compaction of the survivors) and writes
 the next rays and the shadow rays straight into the float32 arrays Embree reads. Loops over
@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["KernelScene", "kernel_scene", "camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
-           "accumulate", "uniform_dims"]
+           "accumulate", "uniform_dims", "PathConfig", "PinholeCamera"]
 
 LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
 POINT, SPOT, DIRECTIONAL = 0, 1, 2
@@ -149,15 +149,27 @@ def uniform_dims(keys, dim0, count):
 
 
 # ------------------------------------------------------------------ camera rays
+class PinholeCamera(NamedTuple):
+    """A camera-to-world pinhole as the kernels read it (:func:`render.integrators.path.pinhole_of`)."""
+
+    fx: float  #: focal length in pixels along x
+    fy: float  #: focal length in pixels along y
+    cx: float  #: principal point x (pixel centres at +0.5)
+    cy: float  #: principal point y
+    rotation: np.ndarray  #: (3, 3) float64 camera-to-world rotation (columns: the camera's x, y, z axes)
+    origin: np.ndarray  #: (3,) float64 the camera centre in world coordinates
+
+
 @njit(**_JIT)
 def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit):
     """Camera samples of flat indices [start, stop): flat = sample * npix + pixel.
 
-    seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: (17,) float64
-    [fx, fy, cx, cy, R (9, row-major camera-to-world rotation), t (3), unused]. Writes keys (N,)
-    uint64, pix (N,) int64, jit (N, 2) jittered pixel positions (dims 0, 1), and when
-    ``pinhole`` the unit rays o32, d32 (N, 3) float32 (what Embree traces and shading reads).
+    seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a
+    :class:`PinholeCamera`. Writes keys (N,) uint64, pix (N,) int64, jit (N, 2) jittered pixel
+    positions (dims 0, 1), and when ``pinhole`` the unit rays o32, d32 (N, 3) float32 (what
+    Embree traces and shading reads).
     """
+    rot, origin = cam.rotation, cam.origin
     for i in range(stop - start):
         flat = start + i
         p = flat % npix
@@ -171,14 +183,14 @@ def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys,
         jit[i, 0] = jx
         jit[i, 1] = jy
         if pinhole:
-            x = (jx - cam[2]) / cam[0]
-            y = (jy - cam[3]) / cam[1]
+            x = (jx - cam.cx) / cam.fx
+            y = (jy - cam.cy) / cam.fy
             nrm = math.sqrt(x * x + y * y + 1.0)
             x, y, z = x / nrm, y / nrm, 1.0 / nrm
             for c in range(3):
-                v = cam[4 + 3 * c] * x + cam[5 + 3 * c] * y + cam[6 + 3 * c] * z
+                v = rot[c, 0] * x + rot[c, 1] * y + rot[c, 2] * z
                 d32[i, c] = v
-                o32[i, c] = cam[13 + c]
+                o32[i, c] = origin[c]
 
 
 # ------------------------------------------------------------------ small helpers
@@ -288,6 +300,155 @@ def _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, li, floor, px, py, pz):
 
 
 # ------------------------------------------------------------------ one bounce
+class PathConfig(NamedTuple):
+    """What the bounce kernels read of the settings and the scene (:func:`render.integrators.path.path_config`)."""
+
+    max_depth: int  #: maximum bounces: paths end at the vertex of this index
+    direct: bool  #: integrator `direct`: paths end at their first diffuse vertex (with one last BSDF ray)
+    caustics: bool  #: keep light reaching a diffuse vertex through specular ones (else dropped)
+    strategy: int  #: STRAT_MIS, STRAT_LIGHT or STRAT_BSDF (next-event estimation vs BSDF sampling)
+    mis_exponent: float  #: 2.0 power heuristic, 1.0 balance heuristic
+    roulette: bool  #: Russian roulette on (path only)
+    rr_depth: int  #: roulette when leaving vertices of index >= rr_depth
+    has_bg: bool  #: escaping rays gather a non-black background
+    nee_area: bool  #: next-event estimation samples area lights
+    nee_any: bool  #: next-event estimation runs at all (area lights sampled, or delta lights present)
+    mis_on_hits: bool  #: emission found by BSDF rays is MIS-weighted against light sampling
+    continue_diffuse: bool  #: diffuse vertices sample a BSDF ray (false: `direct` with light sampling alone)
+    has_area: bool  #: the scene has area lights
+
+
+@njit(inline="always", **_JIT)
+def _emission_weight(cfg, prev_delta, pruned, pdf_prev, pdf_area, t_hit, cos_o):
+    """MIS weight of emission found by a ray sampled with density pdf_prev (solid angle) that hit
+    an emitter at distance t_hit, cosine cos_o, area density pdf_area under light sampling."""
+    w = 1.0
+    if not prev_delta:
+        if cfg.strategy == STRAT_LIGHT and cfg.has_area:
+            w = 0.0
+        elif cfg.mis_on_hits:
+            w = _mis(pdf_prev, pdf_area * t_hit * t_hit / max(abs(cos_o), _COS_FLOOR), cfg.mis_exponent)
+    if pruned:
+        w = 0.0
+    return w
+
+
+@njit(inline="always", **_JIT)
+def _queue_ray(o32, d32, n, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz):
+    """Row n of a ray queue: origin p offset by eps along the geometric normal on wi's side, direction wi."""
+    side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
+    o32[n, 0], o32[n, 1], o32[n, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
+    d32[n, 0], d32[n, 1], d32[n, 2] = wx, wy, wz
+
+
+@njit(inline="always", **_JIT)
+def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
+                p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq):
+    """Next-event estimation at a Lambertian vertex p (shading normal n, geometric ng; 3-tuples)
+    of albedo a and throughput b (3-tuples): one light sample (pick, point: dimensions base ..
+    base + 2), queued as a shadow ray with its unoccluded contribution. Returns the new queue
+    length. (Points and colours travel as tuples: CPython passes calls of more than 30
+    arguments as *args, which numba cannot inline.)"""
+    px, py, pz = p
+    nx, ny, nz = n
+    ngx, ngy, ngz = ng
+    b0, b1, b2 = b
+    a0, a1, a2 = a
+    k = _pick(cdf, _uniform(key, base))
+    u1, u2 = _uniform(key, base + 1), _uniform(key, base + 2)
+    if k < n_area:
+        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
+        ldelta = False
+    else:
+        ok, lx, ly, lz, ldist, L0, L1, L2 = _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, k - n_area,
+                                                          floor, px, py, pz)
+        lpdf = pmf[k]
+        ldelta = True
+    if not ok:
+        return nq
+    cos_i = lx * nx + ly * ny + lz * nz
+    if not (cos_i > 0.0 and (cfg.nee_area or ldelta)):
+        return nq
+    w = 1.0
+    if cfg.strategy == STRAT_MIS and not ldelta:
+        w = _mis(lpdf, cos_i * _INV_PI, cfg.mis_exponent)
+    _queue_ray(q_o32, q_d32, nq, px, py, pz, ngx, ngy, ngz, eps, lx, ly, lz)
+    q_t32[nq] = min(max(ldist * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
+    s = _INV_PI * cos_i * w / lpdf
+    q_val[nq, 0] = b0 * a0 * L0 * s
+    q_val[nq, 1] = b1 * a1 * L1 * s
+    q_val[nq, 2] = b2 * a2 * L2 * s
+    q_idx[nq] = slot
+    return nq + 1
+
+
+@njit(inline="always", **_JIT)
+def _sample_cosine(key, base, nx, ny, nz):
+    """Cosine-weighted direction about n (dimensions base + 4, base + 5; the polar warp of
+    render.sampling.cosine_hemisphere): (wi (3), pdf, its cosine)."""
+    u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
+    r = math.sqrt(u4)
+    phi = (2.0 * math.pi) * u5
+    c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length
+    sn = math.sqrt(max(0.0, 1.0 - c * c))
+    lx, ly = r * c, r * (sn if u5 < 0.5 else -sn)
+    lz = math.sqrt(max(0.0, 1.0 - u4))
+    (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
+    wx = lx * sx + ly * tx + lz * nx
+    wy = lx * sy + ly * ty + lz * ny
+    wz = lx * sz + ly * tz + lz * nz
+    return wx, wy, wz, lz * _INV_PI, lz
+
+
+@njit(inline="always", **_JIT)
+def _sample_specular(kind, r0, r1, r2, ior, key, base, dx, dy, dz, nx, ny, nz):
+    """Mirror (reflectance r) or dielectric (ior; Fresnel lobe choice at dimension base + 3)
+    sample for a ray travelling along d, in the local frame of n (render.bsdf.mirror_sample /
+    dielectric_sample): (valid, wi (3), weight (3), discrete lobe probability)."""
+    (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
+    ox, oy, oz = -dx, -dy, -dz
+    wox = ox * sx + oy * sy + oz * sz
+    woy = ox * tx + oy * ty + oz * tz
+    woz = ox * nx + oy * ny + oz * nz
+    if kind == MIRROR:
+        lx, ly, lz = -wox, -woy, woz
+        valid = woz != 0.0
+        w0, w1, w2 = r0, r1, r2
+        spdf = 1.0
+    else:
+        # Fresnel (render.bsdf.fresnel_dielectric)
+        ci = min(max(woz, -1.0), 1.0)
+        eta_f = 1.0 / ior if ci < 0.0 else ior
+        aci = abs(ci)
+        s2 = (1.0 - aci * aci) / (eta_f * eta_f)
+        if s2 >= 1.0:
+            F = 1.0
+        else:
+            ct = math.sqrt(max(0.0, 1.0 - s2))
+            rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
+            rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
+            F = 0.5 * (rpa * rpa + rpe * rpe)
+        eta = ior if woz >= 0.0 else 1.0 / ior
+        if _uniform(key, base + 3) < F:
+            lx, ly, lz = -wox, -woy, woz
+            spdf = F
+            sc = 1.0
+        else:
+            c = abs(woz)
+            s2t = (1.0 - c * c) / (eta * eta)
+            cos_t = math.sqrt(max(0.0, 1.0 - s2t))
+            sgn = 1.0 if woz >= 0.0 else -1.0
+            lx, ly, lz = -wox / eta, -woy / eta, -sgn * cos_t
+            spdf = 1.0 - F
+            sc = 1.0 / (eta * eta)
+        valid = woz != 0.0 and spdf > 0.0
+        w0 = w1 = w2 = sc
+    wx = lx * sx + ly * tx + lz * nx
+    wy = lx * sy + ly * ty + lz * ny
+    wz = lx * sz + ly * tz + lz * nz
+    return valid, wx, wy, wz, w0, w1, w2, spdf
+
+
 @njit(**_JIT)
 def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, flags, L,
                  n_idx, n_keys, n_beta, n_pdf, n_flags, n_o32, n_d32,
@@ -295,29 +456,18 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
                  l_o32, l_d32, l_beta, l_pdf, l_idx):
     """Shade the first hits (prim, tfar, hu, hv from Embree) of the live paths at ``depth``.
 
-    cfg: (16,) float64 settings [max_depth, direct, caustics, strategy, power, roulette,
-    rr_depth, has_bg, nee_area, nee_any, mis_on_hits, continue_diffuse, has_area, 0, 0, 0].
-    State of live path i: idx (output slot), keys (RNG), beta (3), d32 (the ray's direction),
-    pdf (density the ray was sampled with), flags (F_DELTA, F_AFTER_DIFF). L (paths, 3): radiance,
-    accumulated in place (emission found, background).
+    cfg: a :class:`PathConfig`. State of live path i: idx (output slot), keys (RNG), beta (3),
+    d32 (the ray's direction), pdf (density the ray was sampled with), flags (F_DELTA,
+    F_AFTER_DIFF). L (paths, 3): radiance, accumulated in place (emission found, background).
+    Random dimensions per bounce from 2 + 8 depth: light pick, light point (2), Fresnel lobe,
+    BSDF direction (2), roulette, spare (camera jitter takes 0 and 1).
 
     Writes the survivors, compacted in order, to n_* (their next rays to n_o32 / n_d32); the
     shadow rays of next-event estimation to the queue q_* (origin, direction, tmax, path slot,
     unoccluded contribution); for `direct`, the last BSDF rays to l_* (origin, direction,
     throughput, pdf, slot). Returns (survivors, shadow rays, last rays).
     """
-    max_depth = int(cfg[0])
-    direct = cfg[1] != 0.0
-    caustics = cfg[2] != 0.0
-    strategy = int(cfg[3])
-    power = cfg[4]
-    roulette = cfg[5] != 0.0 and depth >= int(cfg[6])
-    has_bg = cfg[7] != 0.0
-    nee_area = cfg[8] != 0.0
-    nee_any = cfg[9] != 0.0
-    mis_on_hits = cfg[10] != 0.0
-    continue_diffuse = cfg[11] != 0.0
-    has_area = cfg[12] != 0.0
+    roulette = cfg.roulette and depth >= cfg.rr_depth
     extent, floor, n_area = ks.scal[0], ks.scal[1], np.int64(ks.scal[2])
     base = 2 + 8 * depth
     bg = ks.bg
@@ -333,13 +483,13 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         fl = flags[i]
         prev_delta = (fl & F_DELTA) != 0
         after_diff = (fl & F_AFTER_DIFF) != 0
-        pruned = (not caustics) and prev_delta and after_diff
+        pruned = (not cfg.caustics) and prev_delta and after_diff
         # the float32 direction Embree traced (rounding 6e-8: only cosines and specular
         # reflection/refraction read it, hit points come from barycentrics)
         dx, dy, dz = np.float64(d32[i, 0]), np.float64(d32[i, 1]), np.float64(d32[i, 2])
         b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
         if prim[i] < 0:
-            if has_bg and not pruned:
+            if cfg.has_bg and not pruned:
                 L[slot, 0] += b0 * bg[0]
                 L[slot, 1] += b1 * bg[1]
                 L[slot, 2] += b2 * bg[2]
@@ -349,21 +499,12 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         kind = kinds[obj]
         ngx, ngy, ngz = tris[t, 9], tris[t, 10], tris[t, 11]
         cos_o = -(dx * ngx + dy * ngy + dz * ngz)
-        # ---- emission found by the ray
         if emits[obj] and (two_sided[obj] or cos_o > 0.0):
-            w = 1.0
-            if not prev_delta:
-                if strategy == STRAT_LIGHT and has_area:
-                    w = 0.0
-                elif mis_on_hits:
-                    th = np.float64(tfar[i])
-                    w = _mis(pdf[i], tri_pdf_area[t] * th * th / max(abs(cos_o), _COS_FLOOR), power)
-            if pruned:
-                w = 0.0
+            w = _emission_weight(cfg, prev_delta, pruned, pdf[i], tri_pdf_area[t], np.float64(tfar[i]), cos_o)
             L[slot, 0] += b0 * Le[obj, 0] * w
             L[slot, 1] += b1 * Le[obj, 1] * w
             L[slot, 2] += b2 * Le[obj, 2] * w
-        if depth == max_depth or kind == EMISSIVE or (direct and after_diff):
+        if depth == cfg.max_depth or kind == EMISSIVE or (cfg.direct and after_diff):
             continue
         u, v = np.float64(hu[i]), np.float64(hv[i])
         px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
@@ -376,118 +517,34 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
             nx, ny, nz = ngx, ngy, ngz
         key = keys[i]
         eps = _offset(px, py, pz, extent)
-        valid = False
-        delta = False
-        wx = wy = wz = 0.0
-        w0 = w1 = w2 = 0.0
-        spdf = 0.0
         if kind == LAMBERT:
             if tex[obj, 1] == 0:
                 a0, a1, a2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
             else:
                 a0, a1, a2 = _albedo(albedo, tex, uv, tex_data, obj, t, u, v)
-            # ---- next-event estimation
-            if nee_any and has_lights:
-                k = _pick(cdf, _uniform(key, base))
-                u1, u2 = _uniform(key, base + 1), _uniform(key, base + 2)
-                if k < n_area:
-                    ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
-                    ldelta = False
-                else:
-                    ok, lx, ly, lz, ldist, L0, L1, L2 = _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, k - n_area,
-                                                                      floor, px, py, pz)
-                    lpdf = pmf[k]
-                    ldelta = True
-                if ok:
-                    cos_i = lx * nx + ly * ny + lz * nz
-                    if cos_i > 0.0 and (nee_area or ldelta):
-                        w = 1.0
-                        if strategy == STRAT_MIS and not ldelta:
-                            w = _mis(lpdf, cos_i * _INV_PI, power)
-                        side = eps if lx * ngx + ly * ngy + lz * ngz >= 0.0 else -eps
-                        q_o32[nq, 0], q_o32[nq, 1], q_o32[nq, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
-                        q_d32[nq, 0], q_d32[nq, 1], q_d32[nq, 2] = lx, ly, lz
-                        q_t32[nq] = min(max(ldist * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
-                        s = _INV_PI * cos_i * w / lpdf
-                        q_val[nq, 0] = b0 * a0 * L0 * s
-                        q_val[nq, 1] = b1 * a1 * L1 * s
-                        q_val[nq, 2] = b2 * a2 * L2 * s
-                        q_idx[nq] = slot
-                        nq += 1
-            if not continue_diffuse:
+            if cfg.nee_any and has_lights:
+                nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
+                                 (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
+                                 q_o32, q_d32, q_t32, q_idx, q_val, nq)
+            if not cfg.continue_diffuse:
                 continue
-            # ---- cosine-weighted BSDF sample (polar warp, render.sampling.cosine_hemisphere)
-            u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
-            r = math.sqrt(u4)
-            phi = (2.0 * math.pi) * u5
-            c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length
-            sn = math.sqrt(max(0.0, 1.0 - c * c))
-            lx, ly = r * c, r * (sn if u5 < 0.5 else -sn)
-            lz = math.sqrt(max(0.0, 1.0 - u4))
-            (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
-            wx = lx * sx + ly * tx + lz * nx
-            wy = lx * sy + ly * ty + lz * ny
-            wz = lx * sz + ly * tz + lz * nz
+            wx, wy, wz, spdf, cos_s = _sample_cosine(key, base, nx, ny, nz)
             w0, w1, w2 = a0, a1, a2
-            spdf = lz * _INV_PI
-            valid = lz > 0.0 and cos_o != 0.0
-            if direct:  # the path ends here: queue its last BSDF ray
+            valid = cos_s > 0.0 and cos_o != 0.0
+            delta = False
+            if cfg.direct:  # the path ends here: queue its last BSDF ray
                 if valid and max(max(w0, w1), w2) > 0.0:
-                    side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
-                    l_o32[nl, 0], l_o32[nl, 1], l_o32[nl, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
-                    l_d32[nl, 0], l_d32[nl, 1], l_d32[nl, 2] = wx, wy, wz
+                    _queue_ray(l_o32, l_d32, nl, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz)
                     l_beta[nl, 0], l_beta[nl, 1], l_beta[nl, 2] = b0 * w0, b1 * w1, b2 * w2
                     l_pdf[nl] = spdf
                     l_idx[nl] = slot
                     nl += 1
                 continue
         else:
-            # ---- mirror and dielectric (render.bsdf.mirror_sample / dielectric_sample), local frame
-            (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
-            ox, oy, oz = -dx, -dy, -dz
-            wox = ox * sx + oy * sy + oz * sz
-            woy = ox * tx + oy * ty + oz * tz
-            woz = ox * nx + oy * ny + oz * nz
+            valid, wx, wy, wz, w0, w1, w2, spdf = _sample_specular(kind, albedo[obj, 0], albedo[obj, 1],
+                                                                   albedo[obj, 2], iors[obj], key, base,
+                                                                   dx, dy, dz, nx, ny, nz)
             delta = True
-            if kind == MIRROR:
-                lx, ly, lz = -wox, -woy, woz
-                valid = woz != 0.0
-                w0, w1, w2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
-                spdf = 1.0
-            else:
-                ior = iors[obj]
-                # Fresnel (render.bsdf.fresnel_dielectric)
-                ci = min(max(woz, -1.0), 1.0)
-                eta_f = 1.0 / ior if ci < 0.0 else ior
-                aci = abs(ci)
-                s2 = (1.0 - aci * aci) / (eta_f * eta_f)
-                if s2 >= 1.0:
-                    F = 1.0
-                else:
-                    ct = math.sqrt(max(0.0, 1.0 - s2))
-                    rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
-                    rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
-                    F = 0.5 * (rpa * rpa + rpe * rpe)
-                eta = ior if woz >= 0.0 else 1.0 / ior
-                if _uniform(key, base + 3) < F:
-                    lx, ly, lz = -wox, -woy, woz
-                    spdf = F
-                    sc = 1.0
-                else:
-                    c = abs(woz)
-                    s2t = (1.0 - c * c) / (eta * eta)
-                    cos_t = math.sqrt(max(0.0, 1.0 - s2t))
-                    sgn = 1.0 if woz >= 0.0 else -1.0
-                    lx, ly, lz = -wox / eta, -woy / eta, -sgn * cos_t
-                    spdf = 1.0 - F
-                    sc = 1.0 / (eta * eta)
-                valid = woz != 0.0 and spdf > 0.0
-                w0 = w1 = w2 = sc
-            if not valid:
-                continue
-            wx = lx * sx + ly * tx + lz * nx
-            wy = lx * sy + ly * ty + lz * ny
-            wz = lx * sz + ly * tz + lz * nz
         if not valid:
             continue
         b0, b1, b2 = b0 * w0, b1 * w1, b2 * w2
@@ -501,9 +558,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         n_idx[nn] = slot
         n_keys[nn] = key
         n_beta[nn, 0], n_beta[nn, 1], n_beta[nn, 2] = b0, b1, b2
-        n_d32[nn, 0], n_d32[nn, 1], n_d32[nn, 2] = wx, wy, wz
-        side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
-        n_o32[nn, 0], n_o32[nn, 1], n_o32[nn, 2] = px + side * ngx, py + side * ngy, pz + side * ngz
+        _queue_ray(n_o32, n_d32, nn, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz)
         n_pdf[nn] = spdf
         nf = fl & F_AFTER_DIFF
         if kind == LAMBERT:
@@ -519,14 +574,10 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
 def last_bounce_queue(ks, cfg, n, prim, tfar, l_beta, l_pdf, l_idx, l_o32, l_d32,
                       q0, q_o32, q_d32, q_t32, q_idx, q_val):
     """`direct`'s last BSDF rays: n rays l_* and their hits in the emitter-only BVH (prim,
-    tfar; prim None-like (length 0) when not queried). An emitter hit on its emitting side
-    queues an occlusion query up to it with the MIS-weighted emission; a miss queues one to
-    infinity with the background (when lit). Appends to the shadow queue from q0; returns
-    the new queue length."""
-    strategy = int(cfg[3])
-    power = cfg[4]
-    has_bg = cfg[7] != 0.0
-    has_area = cfg[12] != 0.0
+    tfar; prim None-like (length 0) when not queried). cfg: a :class:`PathConfig`. An emitter
+    hit on its emitting side queues an occlusion query up to it with the MIS-weighted
+    emission; a miss queues one to infinity with the background (when lit). Appends to the
+    shadow queue from q0; returns the new queue length."""
     queried = len(prim) > 0
     bg = ks.bg
     nq = q0
@@ -540,12 +591,12 @@ def last_bounce_queue(ks, cfg, n, prim, tfar, l_beta, l_pdf, l_idx, l_o32, l_d32
                 continue
             th = np.float64(tfar[j])
             w = 1.0
-            if strategy == STRAT_MIS and has_area:
-                w = _mis(l_pdf[j], ks.tri_pdf_area[t] * th * th / max(abs(cos_hit), _COS_FLOOR), power)
+            if cfg.strategy == STRAT_MIS and cfg.has_area:
+                w = _mis(l_pdf[j], ks.tri_pdf_area[t] * th * th / max(abs(cos_hit), _COS_FLOOR), cfg.mis_exponent)
             q_t32[nq] = th * (1.0 - 1e-6)
             for c in range(3):
                 q_val[nq, c] = l_beta[j, c] * ks.Le[obj, c] * w
-        elif has_bg:
+        elif cfg.has_bg:
             q_t32[nq] = _TMAX_CAP
             for c in range(3):
                 q_val[nq, c] = l_beta[j, c] * bg[c]

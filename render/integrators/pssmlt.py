@@ -6,8 +6,8 @@ deterministic function of a point U in the primary sample space [0, 1)^D, D = 2 
 sample on the image plane (x = W u0, y = H u1, so the pixel is (floor(y), floor(x)) and the
 jitter inside it the fractional parts); scattering vertex k (0 = the first hit) reads the six
 columns 2 + 6k .. 2 + 6k + 5: light pick, light uv (2) for next-event estimation, BSDF lobe
-(glass: reflect or refract), BSDF uv (2). It follows render.pathtracer's conventions and its
-compiled kernel (render.pt_kernels.shade_bounce) exactly: the same radiometry and light units,
+(glass: reflect or refract), BSDF uv (2). It follows render.integrators.path's conventions and its
+compiled kernel (render.integrators.path_kernels.shade_bounce) exactly: the same radiometry and light units,
 max_depth counts scattering events, the camera ray counts as specular (emission seen directly
 has weight 1), one-sided emitters, two-sided Lambert and mirror frames, outward dielectric
 frames, background radiance for escaping rays, next-event estimation and cosine BSDF sampling
@@ -19,10 +19,10 @@ box-filtered pixel measurement as `path`:
 
     I_p = W H E_U[ f(U) 1{pixel(U) = p} ],   f(U) the path's (3,) RGB radiance contribution.
 
-The sampler is a numpy wavefront (render.volpath's structure): each bounce is one Embree query
+The sampler is a numpy wavefront (render.integrators.volpath's structure): each bounce is one Embree query
 for all live paths and one occlusion query for their shadow rays; survivors are compacted and
 carry their row index, so column look-ups stay per path. It reuses the prepared scene of
-render.pathtracer (BVH, material table, light distribution), render.bsdf's samplers,
+render.integrators.prepared (BVH, material table, light distribution), render.bsdf's samplers,
 render.lights.LightSet and render.accel.spawn_origin.
 
 **Metropolis.** The scalar importance is I(U) = luminance (Rec. 709: 0.2126, 0.7152, 0.0722)
@@ -69,7 +69,7 @@ per pixel, so Film.mean and Film.variance reproduce both.
 
 **Units of work.** A group is a pure function of (scene, camera, seed, group index, its
 mutations): it is run alone (:func:`_run_group`), never vectorized with other groups, so its
-bytes do not depend on what else is rendered. Through :func:`render.pathtracer.render` a render
+bytes do not depend on what else is rendered. Through :func:`render.integrators.render` a render
 of ``spp`` is split into K = min(:data:`GROUPS`, spp) groups over its sample range
 (:func:`render.film.group_ranges`; fewer than 8 groups, and a zero variance image for one, when
 spp < 8), and a ``sample_range`` of whole groups renders just those: renders of whole groups
@@ -102,15 +102,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .accel import offset_eps, spawn_origin
-from .bsdf import DIELECTRIC, EMISSIVE, LAMBERT, bsdf_sample
-from .camera import Camera
-from .effects import scene_effects
-from .film import Film, RenderResult, group_ranges
-from .pathtracer import PreparedScene, prepare
-from .sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from ..accel import offset_eps, spawn_origin
+from ..bsdf import DIELECTRIC, EMISSIVE, LAMBERT, bsdf_sample
+from ..camera import Camera
+from ..effects import scene_effects
+from ..film import Film, RenderResult, group_ranges, whole_groups
+from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from .prepared import PreparedScene, prepare
+from .settings import RenderSettings, check_heuristic, heuristic_exponent
 
-__all__ = ["DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
+__all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
            "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result", "GROUPS"]
 
 #: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2)
@@ -122,6 +123,22 @@ S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
 _TMAX_CAP = 3e38
 _BOOT_CHUNK = 1 << 15
 _IMPORTANCE_BINS = np.array([0.1, 1.0, 10.0, 100.0])  # I / b bin edges of the acceptance statistics
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``pssmlt`` (RenderSettings fields of the same names; no roulette or strategy:
+    the path sampler is a deterministic function of its primary sample, NEE + BSDF sampling
+    always MIS-weighted).
+
+    Chains, bootstrap samples and the large-step probability per group are the module's
+    GROUP_CHAINS, GROUP_BOOTSTRAP and LARGE_STEP (render_pssmlt takes others)."""
+
+    #: MIS weights of the path sampler: "power" or "balance" (Veach and Guibas)
+    heuristic: str = "power"
+
+    def __post_init__(self):
+        check_heuristic(self.heuristic)
 
 
 def primary_dims(max_depth: int) -> int:
@@ -136,17 +153,18 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------- the primary-sample path sampler
 def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
-                 heuristic: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+                 heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
     """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)).
 
     Returns ((N,) int64 row-major pixel index, (N, 3) float64 radiance contribution f(U)):
     with U uniform, W H f(U) 1{pixel = p} is an unbiased estimate of pixel p's box-filtered
-    radiance (render.pathtracer's measurement). heuristic: MIS exponent (2 power, 1 balance).
+    radiance (render.integrators.path's measurement). heuristic: MIS weights, "power" or "balance".
     See the module docstring for the column layout and conventions.
     """
     U = np.asarray(U, dtype=np.float64)
     if U.ndim != 2 or U.shape[1] < primary_dims(max_depth):
         raise ValueError(f"pssmlt: U must be (N, >= {primary_dims(max_depth)}), got {U.shape}")
+    hexp = heuristic_exponent(heuristic)
     geom, mats, lights, accel = ps.geom, ps.mats, ps.lights, ps.accel
     k = camera.intrinsics
     n = len(U)
@@ -191,7 +209,7 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
             nd = ~delta_prev[e]
             if mis_on_hits and nd.any():
                 en = e[nd]
-                w[nd] = mis_weight(pdf_prev[en], lights.pdf_hit(tri[en], t[en], cos_o[en]), heuristic)
+                w[nd] = mis_weight(pdf_prev[en], lights.pdf_hit(tri[en], t[en], cos_o[en]), hexp)
             L[idx[e]] += beta[e] * mats.Le[obj[e]] * w[:, None]
         if depth == max_depth:
             break
@@ -219,7 +237,7 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
                 j = np.nonzero(ok)[0]
                 v = li[j]
                 wi = ls.wi[j]
-                w = np.where(ls.delta[j], 1.0, mis_weight(ls.pdf[j], cos_i[j] * INV_PI, heuristic))
+                w = np.where(ls.delta[j], 1.0, mis_weight(ls.pdf[j], cos_i[j] * INV_PI, hexp))
                 eps = offset_eps(p[v], extent)
                 side = np.where(dot3(wi, ng[v]) >= 0.0, eps, -eps)
                 tmax = np.minimum(np.maximum(ls.dist[j] * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
@@ -263,7 +281,7 @@ def _evaluate(ps, camera, U, max_depth, caustics, heuristic):
 
 
 def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: int = 0, group: int = 0,
-              caustics: bool = True, heuristic: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+              caustics: bool = True, heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
     """The bootstrap of one group: n uniform primary samples (the counter-based hash of
     render.sampling keyed by (seed, group, index)). Returns ((n,) uint64 keys, (n,) float64
     importance I). b = I.mean() estimates E_U[I] = the mean image luminance; row i's sample is
@@ -345,7 +363,7 @@ class _GroupRun:
 
 
 def _run_group(ps: PreparedScene, camera: Camera, group: int, mutations: int, chains: int, n_bootstrap: int,
-               max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: float) -> _GroupRun:
+               max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> _GroupRun:
     """Group ``group``: its bootstrap (n_bootstrap samples keyed by (seed, group)), min(chains,
     mutations) chains started by resampling it, advanced ceil(mutations / chains) steps with
     random streams keyed by (seed, group): a pure function of its arguments, whatever other
@@ -419,7 +437,7 @@ def _check_arguments(spp: int, max_depth: int, large_step: float) -> None:
 
 def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,
                   prepared: PreparedScene | None = None, chains: int = 4096, large_step: float = 0.3,
-                  n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: float = 2.0) -> PSSMLTResult:
+                  n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: str = "power") -> PSSMLTResult:
     """Render ``camera``'s view of ``scene`` by primary-sample-space Metropolis light transport.
 
     spp: mutations per pixel on average (spp x W x H proposals in all, split evenly over the
@@ -429,7 +447,7 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     n_bootstrap / K samples, its own chains and random streams). large_step: probability
     p_large of a large step (0 <= p_large <= 1). effects: effects to simulate (default
     scene_effects(scene)); without 'caustics', caustic paths are dropped as in
-    render.pathtracer. heuristic: MIS exponent (2 power, 1 balance). Returns a :class:`PSSMLTResult`.
+    render.integrators.path. heuristic: MIS weights, "power" or "balance". Returns a :class:`PSSMLTResult`.
     """
     t0 = time.perf_counter()
     spp, max_depth, groups = int(spp), int(max_depth), int(groups)
@@ -475,35 +493,35 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
         float(1.0 - sum(r.moved for r in runs) / running) if running else 1.0, stats)
 
 
-#: independent chain groups of a render through render.pathtracer.render (fewer when spp < GROUPS),
+#: independent chain groups of a render through render.integrators.render (fewer when spp < GROUPS),
 #: and each group's chains and bootstrap samples (render_pssmlt's defaults divided by 16 groups)
 GROUPS = 16
 GROUP_CHAINS = 4096 // GROUPS
 GROUP_BOOTSTRAP = 100_000 // GROUPS
+#: probability of a large step (Kelemen's p_large; render_pssmlt's default)
+LARGE_STEP = 0.3
 
 
-def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None) -> RenderResult:
-    """PSSMLT as a :class:`render.film.RenderResult` (what render.pathtracer.render returns for
-    integrator 'pssmlt'): spp = mutations per pixel, settings.max_depth, .seed and .heuristic.
+def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
+                  effects: frozenset, prepared: PreparedScene, progress=None) -> RenderResult:
+    """PSSMLT as a :class:`render.film.RenderResult` (the registry's interface; progress unused):
+    spp = mutations per pixel, settings.max_depth and .seed, options.heuristic.
 
     A render of settings.spp is split into K = min(:data:`GROUPS`, spp) independent chain groups
     over its sample range (:func:`render.film.group_ranges`); group g of samples [a_g, b_g)
     runs (b_g - a_g) W H mutations with :data:`GROUP_CHAINS` chains and its own bootstrap of
-    :data:`GROUP_BOOTSTRAP` samples. ``sample_range`` (default (0, spp)) must start and end on
-    group boundaries (ValueError naming pssmlt otherwise, which also refuses refine()). The film
-    holds each group's image as one sample per pixel (n = groups), so its mean and variance are
-    the mean of the group images and the variance of that mean, and renders of whole groups
-    merge exactly in group order. stats (additive): time_s, paths, nonfinite, groups,
-    groups_without_light, chains, mutations, proposed, accepted."""
-    from .film import whole_groups
-
-    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    :data:`GROUP_BOOTSTRAP` samples. ``sample_range`` must start and end on group boundaries
+    (ValueError naming pssmlt otherwise, which also refuses refine()). The film holds each
+    group's image as one sample per pixel (n = groups), so its mean and variance are the mean of
+    the group images and the variance of that mean, and renders of whole groups merge exactly in
+    group order. stats (additive): time_s, paths, nonfinite, groups, groups_without_light,
+    chains, mutations, proposed, accepted."""
+    a, b = sample_range
     ranges = whole_groups((a, b), settings.spp, GROUPS, "pssmlt")
     t0 = time.perf_counter()
-    eff = scene_effects(scene) if effects is None else frozenset(effects)
-    ps = prepared if prepared is not None else prepare(scene)
-    _check_supported(scene, ps, eff)
-    _check_arguments(settings.spp, settings.max_depth, 0.3)
+    ps = prepared
+    _check_supported(scene, ps, effects)
+    _check_arguments(settings.spp, settings.max_depth, LARGE_STEP)
     k = camera.intrinsics
     npix = k.width * k.height
     first = [r[0] for r in group_ranges(settings.spp, GROUPS)]
@@ -512,8 +530,7 @@ def render_result(scene, camera: Camera, settings, sample_range=None, effects=No
              "proposed": 0, "accepted": 0}
     for g0, g1 in ranges:
         run = _run_group(ps, camera, first.index(g0), (g1 - g0) * npix, GROUP_CHAINS, GROUP_BOOTSTRAP,
-                         settings.max_depth, settings.seed, 0.3, "caustics" in eff,
-                         2.0 if settings.heuristic == "power" else 1.0)
+                         settings.max_depth, settings.seed, LARGE_STEP, "caustics" in effects, options.heuristic)
         if not np.all(np.isfinite(run.image)):
             raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
         film.add_moments(run.image, run.image * run.image, np.ones(npix, np.int64))

@@ -36,7 +36,7 @@ P^((alpha - 1) / 2) where photons land), and one progressive run has no per-pixe
 variance (its passes are a chain, not a sum). :class:`SPPMResult` keeps the direct term's own
 variance, the per-pixel radii and photon counts, and a per-pass history.
 
-**Independent groups** (what :func:`render.pathtracer.render` and the ``reference`` stage run):
+**Independent groups** (what :func:`render.integrators.render` and the ``reference`` stage run):
 a render of ``spp`` passes is split into K = min(:data:`GROUPS`, spp) groups of consecutive
 passes (:func:`render.film.group_ranges`), each an independent progressive run with its own
 random streams (pass indices are global, so group g's passes draw what they would in any split)
@@ -47,7 +47,7 @@ a spp / K pass run, larger than one run of spp passes would have), which no spre
 groups can show. A unit of work is a run of whole groups, so renders of whole groups merge and
 batches and workers give the same bytes.
 
-Max depth counts scattering events as in :mod:`render.pathtracer`: a path of k specular eye
+Max depth counts scattering events as in :mod:`render.integrators.path`: a path of k specular eye
 bounces, the visible point and a photon that scattered d times before landing has k + 1 + d
 bounces and is counted only if that is <= max_depth (NEE: k + 1, emission seen: k).
 
@@ -66,13 +66,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .accel import spawn_origin
-from .bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample, lambert_sample
-from .camera import Camera
-from .lights import sample_emission
-from .sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
+from ..accel import spawn_origin
+from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample, lambert_sample
+from ..camera import Camera
+from ..film import Film, RenderResult, whole_groups
+from ..lights import sample_emission
+from ..sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
+from .prepared import PreparedScene, prepare
+from .settings import RenderSettings
 
-__all__ = ["SPPMResult", "render_sppm", "render_result", "ALPHA", "GROUPS"]
+__all__ = ["Options", "SPPMResult", "render_sppm", "render_result", "ALPHA", "GROUPS"]
 
 #: Hachisuka and Jensen's (and pbrt's) fraction of new photons kept per pass
 ALPHA = 2.0 / 3.0
@@ -83,6 +86,20 @@ GROUPS = 8
 _GATHER_CHUNK = 2048
 #: radius classes of the gather, a factor sqrt(2) apart
 _RADIUS_CLASSES = 40
+
+
+@dataclass(frozen=True)
+class Options:
+    """Options of ``sppm`` (RenderSettings fields of the same names; no roulette, strategy or
+    heuristic: photon paths end at max_depth, direct light is next-event estimation alone)."""
+
+    #: photons emitted per pass (None: the view's pixel count, pbrt-v3's default for its SPPM,
+    #: so the photon work follows the image like the eye pass does)
+    photons_per_pass: int | None = None
+
+    def __post_init__(self):
+        if self.photons_per_pass is not None and self.photons_per_pass < 1:
+            raise ValueError(f"sppm: photons_per_pass must be >= 1, got {self.photons_per_pass}")
 
 
 @dataclass
@@ -344,7 +361,7 @@ def _gather(vp: dict, radius: np.ndarray, ph: dict, max_depth: int) -> tuple[np.
 
 # ---------------------------------------------------------------- the integrator
 def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
-                max_depth: int = 8, seed: int = 0, accel=None, *, prepared=None, alpha: float = ALPHA,
+                max_depth: int = 8, seed: int = 0, *, prepared: PreparedScene | None = None, alpha: float = ALPHA,
                 caustics: bool = True, callback=None, first_pass: int = 0) -> SPPMResult:
     """Render ``camera``'s view of ``scene`` by stochastic progressive photon mapping.
 
@@ -353,8 +370,8 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     None: the median pixel footprint (eye path length / fx) of the first pass's visible points,
     clamped to [1e-4, 0.05] x the scene extent (on the caustic bench scene twice that footprint
     doubled the image RMSE at 32 passes: blur bias dominates). max_depth: maximum scattering events of
-    a full path. seed: the render's seed. accel: an :class:`render.accel.Accel` of ``scene`` to
-    reuse (or ``prepared``, a :class:`render.pathtracer.PreparedScene`). alpha: the fraction of
+    a full path. seed: the render's seed. prepared: a :class:`PreparedScene` of ``scene`` to
+    reuse (default: :func:`prepare`). alpha: the fraction of
     new photons kept per pass (0 < alpha < 1). caustics: False drops photons that scattered off
     a specular surface (what the other integrators prune). callback: optional
     ``callback(pass_done, image (H, W, 3) float64, radius (H, W) float64)`` after every pass,
@@ -362,8 +379,6 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     pass (its random streams are keyed by it): a group of passes [first_pass, first_pass +
     passes) draws the same numbers whatever else is rendered.
     """
-    from .pathtracer import PreparedScene, prepare
-
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
     first_pass = int(first_pass)
@@ -373,19 +388,7 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
         raise ValueError(f"sppm: alpha must lie in (0, 1), got {alpha}")
     if initial_radius is not None and not (np.isfinite(initial_radius) and initial_radius > 0):
         raise ValueError(f"sppm: initial_radius must be a positive finite number, got {initial_radius}")
-    if prepared is None:
-        if accel is not None:
-            from .bsdf import MaterialTable
-            from .lights import LightSet
-            from .scene import DirectionalLight, PointLight, SpotLight
-            mats = MaterialTable.from_scene(scene)
-            geom = accel.geometry
-            prepared = PreparedScene(geom, accel, mats, LightSet(scene, geom, mats),
-                                     np.asarray(scene.background, np.float64),
-                                     any(isinstance(l, (PointLight, SpotLight, DirectionalLight)) for l in scene.lights))
-        else:
-            prepared = prepare(scene)
-    ps = prepared
+    ps = prepared if prepared is not None else prepare(scene)
     _check_supported(scene, ps.mats)
     k = camera.intrinsics
     h, w = k.height, k.width
@@ -454,30 +457,28 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
                       (d_s1 / n).reshape(h, w, 3), dvar.reshape(h, w, 3), passes, photons_per_pass, history, stats)
 
 
-def render_result(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None):
-    """SPPM as a :class:`render.film.RenderResult` (what render.pathtracer.render returns): the
-    independent groups of passes (module docstring) that ``sample_range`` covers, of a render of
-    ``settings.spp`` passes; photons per pass ``settings.photons_per_pass`` (None: the view's
+def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
+                  effects: frozenset, prepared: PreparedScene, progress=None) -> RenderResult:
+    """SPPM as a :class:`render.film.RenderResult` (the registry's interface; progress unused):
+    the independent groups of passes (module docstring) that ``sample_range`` covers, of a render
+    of ``settings.spp`` passes; photons per pass ``options.photons_per_pass`` (None: the view's
     pixel count, as pbrt-v3's SPPM).
 
-    sample_range (default (0, settings.spp)) must start and end on group boundaries
-    (:func:`render.film.whole_groups`; ValueError naming sppm otherwise, which also refuses
-    refine()). The film holds each group's image as one sample per pixel (n = groups), so its
-    mean is the mean of the group images and its variance the variance of that mean across
-    groups: noise, not the bias every group shares. stats: time_s, paths (camera + photon
-    paths), rays, groups, photons (emitted), all additive."""
-    from .film import Film, RenderResult, whole_groups
-
-    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
+    sample_range must start and end on group boundaries (:func:`render.film.whole_groups`;
+    ValueError naming sppm otherwise, which also refuses refine()). The film holds each group's
+    image as one sample per pixel (n = groups), so its mean is the mean of the group images and
+    its variance the variance of that mean across groups: noise, not the bias every group
+    shares. stats: time_s, paths (camera + photon paths), rays, groups, photons (emitted), all
+    additive."""
+    a, b = sample_range
     groups = whole_groups((a, b), settings.spp, GROUPS, "sppm")
-    caustics = True if effects is None else "caustics" in frozenset(effects)
     k = camera.intrinsics
     film = Film(k.width, k.height)
-    photons = int(settings.photons_per_pass or k.width * k.height)
+    photons = int(options.photons_per_pass or k.width * k.height)
     stats = {"time_s": 0.0, "paths": 0, "rays": 0, "groups": 0, "photons": 0}
     for g0, g1 in groups:
         res = render_sppm(scene, camera, g1 - g0, photons, max_depth=settings.max_depth,
-                          seed=settings.seed, prepared=prepared, caustics=caustics, first_pass=g0)
+                          seed=settings.seed, prepared=prepared, caustics="caustics" in effects, first_pass=g0)
         image = res.mean.reshape(-1, 3)
         film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
         for key in ("time_s", "paths", "rays"):

@@ -1,6 +1,6 @@
 """``volpath``: a wavefront volumetric path tracer (numpy), with glossy surfaces and media.
 
-It estimates the same measurement as :mod:`render.pathtracer` (box-filtered pixel radiance,
+It estimates the same measurement as :mod:`render.integrators.path` (box-filtered pixel radiance,
 the same camera, light and radiometric conventions) and adds what the compiled kernels lack:
 
 * GGX microfacet surfaces (:mod:`render.microfacet`: rough conductors and rough dielectrics),
@@ -17,9 +17,9 @@ vectorized tracking and shading, one occlusion query for the shadow rays. Vertex
 (throughput, previous-vertex density and delta flag for MIS, the medium a ray travels in)
 lives in the arrays of :func:`trace`, the eye-subpath generator the other integrators share.
 
-Max depth counts scattering events (surface or medium), as in render.pathtracer; Russian
+Max depth counts scattering events (surface or medium), as in render.integrators.path; Russian
 roulette from vertex rr_depth. Without 'caustics' among the effects, paths are cut when they
-leave a non-delta vertex along a delta (specular) sample (what render.pathtracer drops).
+leave a non-delta vertex along a delta (specular) sample (what render.integrators.path drops).
 
 Random numbers: a numpy Generator seeded by (seed, sample range, batch): renders are
 deterministic for a given (seed, sample range, batch_paths), and renders of disjoint sample
@@ -32,27 +32,50 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .accel import spawn_origin
-from .bsdf import (CONDUCTOR, DIELECTRIC, EMISSIVE, LAMBERT, MIRROR, ROUGH_DIELECTRIC, bsdf_sample, lambert_eval,
-                   lambert_pdf)
-from .camera import Camera
-from .film import Film, RenderResult
-from .media import EV_ABSORB, EV_PASS, EV_SCATTER, MediumSet, hg_pdf, hg_sample
-from .microfacet import (ALPHA_SMOOTH, conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
-                         rough_dielectric_pdf, rough_dielectric_sample)
-from .sampling import mis_weight, orthonormal_frame, to_local, to_world
+from ..accel import spawn_origin
+from ..bsdf import CONDUCTOR, DIELECTRIC, EMISSIVE, LAMBERT, ROUGH_DIELECTRIC, bsdf_sample, lambert_eval, lambert_pdf
+from ..camera import Camera
+from ..effects import scene_effects
+from ..film import Film, RenderResult
+from ..media import EV_ABSORB, EV_SCATTER, MediumSet, hg_pdf, hg_sample
+from ..microfacet import (conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
+                          rough_dielectric_pdf, rough_dielectric_sample)
+from ..sampling import mis_weight, orthonormal_frame, to_local, to_world
+from .prepared import PreparedScene, prepare
+from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent, parse_sample_range
 
-__all__ = ["VolContext", "volpath_context", "trace", "render_volpath", "surface_eval", "surface_sample",
-           "is_delta_material", "shadow_transmittance"]
+__all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "surface_eval",
+           "surface_sample", "shadow_transmittance"]
 
 _MAX_CROSSINGS = 16
 
 
+@dataclass(frozen=True)
+class Options:
+    """Options of ``volpath`` (RenderSettings fields of the same names)."""
+
+    #: Russian roulette when leaving vertices of index >= rr_depth
+    roulette: bool = True
+    #: first vertex index (0: the first hit) whose outgoing path roulette may end
+    rr_depth: int = 3
+    #: "mis" (light + BSDF / phase sampling, MIS-weighted), "light" (next-event estimation
+    #: alone) or "bsdf" (BSDF / phase sampling alone for area sources)
+    strategy: str = "mis"
+    #: MIS weights: "power" or "balance" (Veach and Guibas)
+    heuristic: str = "power"
+
+    def __post_init__(self):
+        check_strategy(self.strategy)
+        check_heuristic(self.heuristic)
+        if self.rr_depth < 0:
+            raise ValueError(f"volpath: rr_depth must be >= 0, got {self.rr_depth}")
+
+
 @dataclass
 class VolContext:
-    """What volpath needs beyond :class:`render.pathtracer.PreparedScene`: the media (or None)."""
+    """What volpath needs beyond a :class:`render.integrators.prepared.PreparedScene`: the media (or None)."""
 
-    ps: object  # render.pathtracer.PreparedScene
+    ps: PreparedScene
     media: MediumSet | None
 
 
@@ -62,12 +85,6 @@ def volpath_context(scene, ps, majorants: dict | None = None) -> VolContext:
 
 
 # ---------------------------------------------------------------- surfaces
-def is_delta_material(kind: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """(N,) bool: the material at each vertex scatters only along delta directions."""
-    return (kind == MIRROR) | (kind == DIELECTRIC) | (((kind == CONDUCTOR) | (kind == ROUGH_DIELECTRIC))
-                                                      & (alpha < ALPHA_SMOOTH))
-
-
 def surface_eval(mats, obj: np.ndarray, albedo: np.ndarray, wo: np.ndarray, wi: np.ndarray):
     """(f (N, 3), pdf (N,)) of the objects' BSDFs for local wo, wi (N, 3) (frames: two-sided
     materials face wo, dielectrics outward). Delta lobes give 0."""
@@ -161,13 +178,16 @@ def shadow_transmittance(ctx: VolContext, p: np.ndarray, ng: np.ndarray | None, 
 # ---------------------------------------------------------------- the integrator
 def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: np.random.Generator,
           max_depth: int = 8, rr_depth: int = 3, roulette: bool = True, caustics: bool = True,
-          heuristic: float = 2.0, strategy: str = "mis") -> np.ndarray:
+          heuristic: str = "power", strategy: str = "mis") -> np.ndarray:
     """Radiance (N, 3) arriving along camera rays (origins o, unit directions d (N, 3)) that
     start in media mid (N,) (-1: vacuum), by volumetric path tracing with NEE and MIS.
     strategy: "mis", or one technique alone for area sources (as the compiled path kernels):
     "light" (NEE only: emission reached by a BSDF or phase sample counts only after a delta
     vertex) or "bsdf" (no NEE towards area sources; delta lights keep NEE, nothing else finds
-    them). All three are unbiased; Veach's MIS scene shows where each wins."""
+    them). All three are unbiased; Veach's MIS scene shows where each wins. heuristic: "power"
+    or "balance" (MIS weights)."""
+    check_strategy(strategy)
+    hexp = heuristic_exponent(heuristic)
     ps = ctx.ps
     mats, lights, geom = ps.mats, ps.lights, ps.geom
     ms = ctx.media
@@ -248,7 +268,7 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
                     w[nd] = 0.0
                 else:
                     pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
-                    w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, heuristic)
+                    w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, hexp)
             np.add.at(L, idx[si[e]], beta[si[e]] * mats.Le[obj[e]] * (w * front)[:, None])
         kind = mats.kind[obj]
         alive_s = (kind != EMISSIVE) & (bounces[si] < max_depth)
@@ -294,7 +314,7 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
                     o_sh[surf_k] = spawn_origin(pts[k[surf_k]], ngs[surf_k], lsmp.wi[k[surf_k]], extent)
                 T = shadow_transmittance(ctx, o_sh, None, lsmp.wi[k], lsmp.dist[k], start_mid, rng)
                 w = (np.ones(len(k)) if strategy == "light"
-                     else np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], heuristic)))
+                     else np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], hexp)))
                 contrib = f[k] * lsmp.Li[k] * T * (w / lsmp.pdf[k])[:, None]
                 owner = np.concatenate([sa, ma])[k]
                 np.add.at(L, idx[owner], beta[owner] * contrib)
@@ -349,22 +369,30 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
     return L
 
 
-def render_volpath(scene, camera: Camera, settings, sample_range=None, effects=None, prepared=None,
-                   ctx: VolContext | None = None) -> RenderResult:
-    """Render ``camera``'s view with ``volpath`` (settings: render.pathtracer.RenderSettings).
+def render_volpath(scene, camera: Camera, settings: RenderSettings, sample_range=None, effects=None,
+                   prepared: PreparedScene | None = None, ctx: VolContext | None = None) -> RenderResult:
+    """Render ``camera``'s view with ``volpath`` (settings: a :class:`RenderSettings` whose
+    integrator options volpath reads: :class:`Options`). sample_range: [a, b) (default (0,
+    spp)). effects: default scene_effects(scene). prepared / ctx: to reuse.
 
     Returns a :class:`render.film.RenderResult` (mean and variance (H, W, 3) float32).
     """
-    from .effects import scene_effects
-    from .pathtracer import prepare
-
-    t0 = time.perf_counter()
     eff = scene_effects(scene) if effects is None else frozenset(effects)
     ps = prepared if prepared is not None else prepare(scene, threads=settings.threads)
+    return render_result(scene, camera, settings, settings.options("volpath", Options),
+                         parse_sample_range(settings.spp, sample_range, "volpath"), eff, ps, ctx=ctx)
+
+
+def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
+                  effects: frozenset, prepared: PreparedScene, progress=None,
+                  ctx: VolContext | None = None) -> RenderResult:
+    """Render samples [a, b) = ``sample_range`` with volpath (the registry's interface; progress
+    unused). Batches of ``settings.batch_paths`` camera samples, each with its own Generator
+    seeded by (seed, a, b, batch start)."""
+    t0 = time.perf_counter()
+    ps = prepared
     ctx = ctx if ctx is not None else volpath_context(scene, ps)
-    a, b = (0, settings.spp) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
-    if not 0 <= a < b:
-        raise ValueError(f"sample_range must satisfy 0 <= start < stop, got {(a, b)}")
+    a, b = sample_range
     k = camera.intrinsics
     npix = k.width * k.height
     total = npix * (b - a)
@@ -372,7 +400,6 @@ def render_volpath(scene, camera: Camera, settings, sample_range=None, effects=N
     if ctx.media is not None:
         mid0 = int(ctx.media.medium_at(camera.cam_to_world[:3, 3][None])[0])
     film = Film(k.width, k.height)
-    hp = 2.0 if settings.heuristic == "power" else 1.0
     for c0 in range(0, total, settings.batch_paths):
         c1 = min(c0 + settings.batch_paths, total)
         rng = np.random.default_rng([settings.seed & 0xFFFFFFFF, a, b, c0])
@@ -380,8 +407,8 @@ def render_volpath(scene, camera: Camera, settings, sample_range=None, effects=N
         pix = flat % npix
         jit = np.stack([pix % k.width + rng.random(len(flat)), pix // k.width + rng.random(len(flat))], axis=1)
         o, d = camera.pixel_rays(jit)
-        L = trace(ctx, o, d, np.full(len(o), mid0, np.int64), rng, settings.max_depth, settings.rr_depth,
-                  settings.roulette, "caustics" in eff, hp, settings.strategy)
+        L = trace(ctx, o, d, np.full(len(o), mid0, np.int64), rng, settings.max_depth, options.rr_depth,
+                  options.roulette, "caustics" in effects, options.heuristic, options.strategy)
         if not np.all(np.isfinite(L)):
             raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
         film.add(pix, L)

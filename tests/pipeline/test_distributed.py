@@ -180,13 +180,13 @@ def test_float64_moments_bit_identical_to_the_in_process_fold(tiny, cluster):
     the float32 mean and variance files hide such differences, the moments do not."""
     from functools import reduce
 
-    from render import pathtracer
+    from render import integrators
     from render.effects import scene_effects
     from pipeline.stages.reference import fold_batches, render_batch
 
     rig, _, _ = tiny
     cluster.ensure(2)
-    settings = pathtracer.RenderSettings(integrator="direct", spp=SPP, threads=1)
+    settings = integrators.RenderSettings(integrator="direct", spp=SPP, threads=1)
     effects = frozenset(scene_effects(rig.scene))
     cams = [c for c in rig.cameras["train"] + rig.cameras["test"]]
     batches = [(a, min(a + 8, SPP)) for a in range(0, SPP, 8)]

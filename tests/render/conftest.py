@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from cornell_box import cornell_camera, cornell_scene  # noqa: E402
 from ptutil import CORNELL_EFFECTS_DIRECT, CORNELL_REF_SPP, CORNELL_RES  # noqa: E402
-from render.pathtracer import RenderSettings, prepare, render  # noqa: E402
+from render.integrators import RenderSettings, prepare, render  # noqa: E402
 
 
 @pytest.fixture(scope="session")

@@ -28,15 +28,15 @@ from scipy import stats
 
 from ptutil import (_blocks, assert_furnace_mean, assert_images_agree, caustic_region, caustic_scene, compare_images,
                     image_mean_and_se, quad, receiver_box)
-from render.bdpt import render_bdpt
-from render.bsdf import DiffuseEmitter
+from render.integrators.bdpt import render_bdpt
+from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.film import merge_results
-from render.microfacet import RoughConductor
-from render.pathtracer import RenderSettings, choose_integrator, prepare, refine, render
+from render.scene import RoughConductor
+from render.integrators import RenderSettings, choose_integrator, prepare, refine, render
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, Medium, Mirror, PointLight, Scene, SceneObject
-from render.sppm import render_sppm
+from render.integrators.sppm import render_sppm
 
 UP = np.array([0.0, 0.0, 1.0])
 RHO = np.array([0.5, 0.5, 0.5])
@@ -113,7 +113,7 @@ def test_furnace_one_number():
 
 @pytest.mark.parametrize("depth,roulette", [(1, False), (3, True)])
 def test_truncated_furnace_counts_bounces_like_path(depth, roulette):
-    """max_depth counts scattering events as render.pathtracer does: a sphere of albedo rho
+    """max_depth counts scattering events as render.integrators does: a sphere of albedo rho
     emitting Le holds Le (1 - rho^(N+1)) / (1 - rho) after N bounces (REFERENCES.md); within the
     3-channel Sidak threshold of bdpt's own standard error (alpha 0.01; measured largest pixel
     |z| 2.1 and 2.3 against 3.7, image mean |z| 0.5 and 1.0). One bounce too many or too few is

@@ -8,9 +8,10 @@ import trimesh
 
 from ptutil import image_mean_and_se, probe_camera, quad, receiver_box
 from test_pathtracer_closed_forms import polygon_irradiance
-from render.bsdf import DiffuseEmitter, dielectric_sample
+from render.bsdf import dielectric_sample
+from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, render
+from render.integrators import RenderSettings, render
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, PointLight, Scene, SceneObject
 

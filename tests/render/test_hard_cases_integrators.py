@@ -11,7 +11,7 @@ import trimesh
 
 from ptutil import assert_images_agree, quad, receiver_box
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, prepare, render
+from render.integrators import RenderSettings, prepare, render
 from render.poses import look_at
 from render.scene import Emissive, Lambertian, PointLight, Scene, SceneObject
 

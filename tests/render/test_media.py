@@ -14,10 +14,10 @@ from scipy import stats
 
 from render.camera import Camera, Intrinsics
 from render.media import EV_PASS, MajorantError, MediumSet, hg_pdf, hg_sample
-from render.pathtracer import RenderSettings, prepare
+from render.integrators import RenderSettings, prepare
 from render.poses import look_at
 from render.scene import DirectionalLight, Emissive, Lambertian, Medium, PointLight, Scene, SceneObject
-from render.volpath import render_volpath, trace, volpath_context
+from render.integrators.volpath import render_volpath, trace, volpath_context
 from recon.nerf.volume import VoxelField, render_voxels_exact, render_voxels_quadrature
 
 Z = 4.5

@@ -39,10 +39,10 @@ import trimesh
 from scipy import integrate
 
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings
+from render.integrators import RenderSettings
 from render.poses import look_at
 from render.scene import Emissive, Lambertian, Medium, PointLight, Scene, SceneObject
-from render.volpath import render_volpath
+from render.integrators.volpath import render_volpath
 
 Z = 4.0
 

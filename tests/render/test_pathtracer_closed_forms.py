@@ -7,9 +7,9 @@ import pytest
 import trimesh
 
 from ptutil import disk, image_mean_and_se, probe_camera, quad, receiver_box
-from render.bsdf import DiffuseEmitter
+from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, render
+from render.integrators import RenderSettings, render
 from render.poses import look_at
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Mirror, PointLight, Scene, SceneObject,
                           SpotLight)

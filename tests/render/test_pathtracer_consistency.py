@@ -12,7 +12,7 @@ import trimesh
 
 from ptutil import CORNELL_EFFECTS_DIRECT, assert_images_agree, caustic_scene, compare_images, quad
 from render.film import merge_results
-from render.pathtracer import SMALL_SOURCE_SR, RenderSettings, choose_integrator, prepare, render, refine
+from render.integrators import SMALL_SOURCE_SR, RenderSettings, choose_integrator, prepare, render, refine
 from render.scene import Dielectric, Emissive, Lambertian, PointLight, Scene, SceneObject
 from render.camera import Camera, Intrinsics
 from render.poses import look_at

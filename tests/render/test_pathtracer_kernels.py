@@ -13,8 +13,9 @@ from cornell_box import cornell_camera, cornell_scene
 from render import embree_direct
 from render.accel import Accel, Geometry, spawn_origin
 from render.bsdf import MaterialTable
-from render.pathtracer import RenderSettings, prepare, render
-from render.pt_kernels import _albedo, _GOLDEN, camera_rays, uniform_dims
+from render.integrators import RenderSettings, prepare, render
+from render.integrators.path import pinhole_of
+from render.integrators.path_kernels import _albedo, _GOLDEN, camera_rays, uniform_dims
 from render.sampling import _mix64, cosine_hemisphere, orthonormal_frame, path_keys, to_world, uniform_block
 from render.scene import Lambertian, Scene, SceneObject
 
@@ -25,9 +26,7 @@ def test_rng_and_camera_rays_match_numpy():
     keys, pix = np.empty(n, np.uint64), np.empty(n, np.int64)
     o32, d32, jit = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(seed)], dtype=np.uint64) + _GOLDEN)[0]
-    k = cam.intrinsics
-    vec = np.concatenate([[k.fx, k.fy, k.cx, k.cy], cam.cam_to_world[:3, :3].ravel(), cam.cam_to_world[:3, 3]])
-    camera_rays(0, n, npix, 32, sample0, seed_mix, vec, True, keys, pix, o32, d32, jit)
+    camera_rays(0, n, npix, 32, sample0, seed_mix, pinhole_of(cam), True, keys, pix, o32, d32, jit)
     flat = np.arange(n)
     assert np.array_equal(pix, flat % npix)
     assert np.array_equal(keys, path_keys(seed, flat % npix, sample0 + flat // npix))
@@ -47,7 +46,7 @@ def test_texture_lookup_matches_material_table():
     sc = Scene("tex", [SceneObject("t", mesh, Lambertian(tint, texture=tex))])
     g, mt = Geometry.from_scene(sc), MaterialTable.from_scene(sc)
     ps = prepare(sc, threads=1)
-    from render.pathtracer import _kernel_scene
+    from render.integrators.path import kernel_scene_of as _kernel_scene
     ks = _kernel_scene(ps)
     u, v = rng.random(200) * 0.5, rng.random(200) * 0.5
     tri = np.zeros(200, np.int64)

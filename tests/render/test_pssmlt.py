@@ -22,13 +22,13 @@ from scipy import stats
 from cornell_box import quads_mesh
 from ptutil import (CORNELL_RES, assert_furnace_mean, assert_images_agree, compare_images, image_mean_and_se, probe_camera,
                     quad, receiver_box)
-from render.bsdf import DiffuseEmitter
+from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
 from render.film import Film, RenderResult
-from render.microfacet import RoughConductor
-from render.pathtracer import RenderSettings, prepare, refine, render
+from render.scene import RoughConductor
+from render.integrators import RenderSettings, prepare, refine, render
 from render.poses import look_at
-from render.pssmlt import LUMINANCE, bootstrap, primary_dims, render_pssmlt, sample_paths
+from render.integrators.pssmlt import LUMINANCE, bootstrap, primary_dims, render_pssmlt, sample_paths
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight, Scene,
                           SceneObject)
 from test_pathtracer_closed_forms import polygon_irradiance
@@ -40,7 +40,7 @@ UP = np.array([0.0, 0.0, 1.0])
 def uniform_render(ps, cam, spp: int, max_depth: int, seed: int, caustics: bool = True) -> RenderResult:
     """The primary-sample sampler with i.i.d. uniform U, spp samples per pixel (columns 0, 1
     stratified to each pixel, so every pixel gets exactly spp samples): a RenderResult with the
-    per-sample variance of the mean, like render.pathtracer's."""
+    per-sample variance of the mean, like render.integrators's."""
     k = cam.intrinsics
     npix = k.width * k.height
     rng = np.random.default_rng(seed)

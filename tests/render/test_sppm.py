@@ -13,12 +13,11 @@ import pytest
 import trimesh
 
 from ptutil import caustic_region, caustic_scene, probe_camera, quad, receiver_box
-from render.accel import Accel
 from render.camera import Camera, Intrinsics
-from render.microfacet import RoughConductor
-from render.pathtracer import RenderSettings, choose_integrator, prepare, refine, render
+from render.scene import RoughConductor
+from render.integrators import RenderSettings, choose_integrator, prepare, refine, render
 from render.scene import Emissive, Medium, Mirror, PointLight, Scene, SceneObject
-from render.sppm import render_sppm
+from render.integrators.sppm import render_sppm
 from test_pathtracer_closed_forms import polygon_irradiance
 
 RHO = np.array([0.5, 0.5, 0.5])
@@ -159,7 +158,7 @@ def test_render_wiring_determinism_and_auto():
     and refine, are refused naming sppm; auto never picks sppm; point-light caustics,
     unreachable by path, are accepted by sppm."""
     from render.film import merge_results
-    from render.sppm import GROUPS
+    from render.integrators.sppm import GROUPS
 
     sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(8, 8, 45.0), cam.cam_to_world, "tiny")
@@ -171,8 +170,8 @@ def test_render_wiring_determinism_and_auto():
     assert np.all(np.isfinite(a.mean)) and a.mean.max() > 0 and a.variance.max() > 0
     assert np.array_equal(a.film.variance(), a.variance)
     assert np.array_equal(render(sc, cam, st, prepared=ps).mean, a.mean)
-    acc = Accel(sc, threads=1, geometry=ps.geom)
-    groups = [render_sppm(sc, cam, 1, 5_000, seed=11, accel=acc, first_pass=g).mean for g in range(3)]
+    groups = [render_sppm(sc, cam, 1, 5_000, seed=11, prepared=prepare(sc, threads=1), first_pass=g).mean
+              for g in range(3)]
     assert np.array_equal(((groups[0] + groups[1]) + groups[2]) / 3.0, a.film.s1.reshape(8, 8, 3) / 3.0)
     parts = [render(sc, cam, st, sample_range=r, prepared=ps) for r in ((0, 1), (1, 3))]
     assert parts[1].stats["groups"] == 2

@@ -12,7 +12,7 @@ import pytest
 from scipy import stats
 
 from render.camera import Camera, Intrinsics
-from render.pathtracer import RenderSettings, prepare, render
+from render.integrators import RenderSettings, prepare, render
 from rig.build import load_scene
 
 SPP = 128

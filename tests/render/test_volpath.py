@@ -10,13 +10,13 @@ import pytest
 import trimesh
 
 from ptutil import assert_furnace_mean, assert_images_agree, compare_images, image_mean_and_se, probe_camera, quad
-from render.bsdf import DiffuseEmitter
+from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
-from render.microfacet import RoughConductor, RoughDielectric
-from render.pathtracer import RenderSettings, choose_integrator, prepare, render
+from render.scene import RoughConductor, RoughDielectric
+from render.integrators import RenderSettings, choose_integrator, prepare, render
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, Medium, Mirror, Scene, SceneObject
-from render.volpath import volpath_context
+from render.integrators.volpath import volpath_context
 
 
 def test_volpath_agrees_with_path_on_cornell(cornell, cornell_path_reference):

@@ -394,7 +394,7 @@ def test_rasterizer_and_path_tracer_agree_in_linear_radiance(geo, render_scene):
     Pixel criterion on 99.5% of judged pixels, not all: the path tracer's pick between the two
     lights makes its per-pixel estimate discrete and skewed (measured: 99.96% pass at 256 spp,
     99.46% at 64)."""
-    from render.pathtracer import RenderSettings, render
+    from render.integrators import RenderSettings, render
 
     lo, hi = np.array([-0.25, -0.25, 0.0]), np.array([0.25, 0.25, 0.5])
     spot = SpotLight([1.0, 0.6, 2.0], [-1.0, -0.6, -2.0], [20.0, 15.0, 10.0], np.radians(30), np.radians(40))

@@ -125,7 +125,7 @@ def test_smoke_density_is_deterministic_bounded_and_fades_at_the_box():
 
 def test_glowing_smoke_scene_has_a_grid_medium_and_needs_volpath():
     from render.effects import scene_effects
-    from render.pathtracer import choose_integrator
+    from render.integrators import choose_integrator
 
     rig = load_scene("glowing_smoke")
     (medium,) = rig.scene.media
