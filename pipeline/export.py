@@ -52,6 +52,8 @@ FORMATS = ("nerfstudio", "instant-ngp", "colmap")
 NGP_DEPTH_MAX_M = 16.0
 #: nerfstudio's default depth_unit_scale_factor: its 16-bit depth PNGs are in millimetres
 NS_DEPTH_UNIT_M = 1e-3
+#: the subject's bounding box fills 1 / FRAMING_MARGIN of instant-ngp's unit cube
+FRAMING_MARGIN = 1.1
 #: nerfstudio's applied_transform when nothing was applied (3x4; it assumes a COLMAP axis swap otherwise
 #: whenever colmap/sparse/0 exists beside the json)
 _IDENTITY_3x4 = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
@@ -120,8 +122,8 @@ def ngp_framing(cameras: list[Camera], depths: list[np.ndarray], masks: list[np.
 
     instant-ngp maps a NeRF-frame position p to ``p * scale + offset`` (then cycles the axes,
     ``nerf_matrix_to_ngp``) and trains inside the unit cube, enlarged ``aabb_scale`` times around
-    its centre. scale = 1 / (the subject's largest bounding-box side, from the depth of its
-    masked pixels) and offset = 0.5 - scale * (the box centre) put the subject in the unit cube
+    its centre. scale = 1 / (FRAMING_MARGIN x the subject's largest bounding-box side, from the
+    depth of its masked pixels, 0.5 and 99.5 percentiles per axis) and offset = 0.5 - scale * (the box centre) put the subject in the unit cube
     centred at 0.5; aabb_scale is the smallest power of two (1..128) whose cube holds every
     surface seen (all depth points), so the board and turntable are inside the trained volume."""
     subject, seen = [], []
@@ -132,8 +134,9 @@ def ngp_framing(cameras: list[Camera], depths: list[np.ndarray], masks: list[np.
     sub = np.concatenate(subject)
     if len(sub) == 0:
         raise BadInput("export: no subject pixel with depth in any view (masks empty?): cannot frame the subject")
-    lo, hi = sub.min(0), sub.max(0)
-    scale = 1.0 / max(float(np.max(hi - lo)), 1e-9)
+    # robust bounds: mask-edge pixels carry depth of what lies behind the subject's silhouette
+    lo, hi = np.percentile(sub, 0.5, axis=0), np.percentile(sub, 99.5, axis=0)
+    scale = 1.0 / (FRAMING_MARGIN * max(float(np.max(hi - lo)), 1e-9))
     centre = (lo + hi) / 2
     offset = 0.5 - scale * centre
     allp = np.concatenate(seen) * scale + offset
