@@ -8,7 +8,7 @@ CONFORMANCE := $(VENV)/.conformance-stamp
 SCENE  ?= turntable
 export PYOPENGL_PLATFORM := egl
 
-.PHONY: setup demo test bench repro clean
+.PHONY: setup demo test bench repro lock clean
 
 setup: $(STAMP) $(CONFORMANCE)
 
@@ -26,8 +26,16 @@ $(CONFORMANCE): $(STAMP)
 	$(BIN)/python -m pip install -q --no-deps nerfstudio==1.1.5 jaxtyping==0.3.11 wadler_lindig==0.1.8
 	touch $(CONFORMANCE)
 
+# the demo runs the stages dvc.yaml wires, with params.yaml's values; for the default scene it then
+# records what each stage wrote in dvc.lock (dvc commit), so `dvc status` is up to date afterwards
 demo: setup
 	$(BIN)/lumigraph run $(SCENE)
+	if [ "$(SCENE)" = "$$(sed -n 's/^scene: *//p' params.yaml)" ]; then $(BIN)/dvc commit -f -q; fi
+
+# regenerate dvc.lock from a fresh run of the default scene (commit it with the code it hashes)
+lock: setup
+	$(BIN)/lumigraph run $$(sed -n 's/^scene: *//p' params.yaml) --overwrite
+	$(BIN)/dvc commit -f -q
 
 test: setup
 	$(BIN)/python -m pytest -q tests
