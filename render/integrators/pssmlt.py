@@ -460,11 +460,17 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     ps = prepared if prepared is not None else prepare(scene)
     _check_supported(scene, ps, eff)
     k = camera.intrinsics
-    h, w = k.height, k.width
-    total = spp * w * h
+    total = spp * k.width * k.height
     runs = [_run_group(ps, camera, g, max(1, (g + 1) * total // groups - g * total // groups),
                        max(1, int(chains) // groups), int(n_bootstrap) // groups, max_depth, seed, float(large_step),
                        "caustics" in eff, heuristic) for g in range(groups)]
+    return _result(runs, k.height, k.width, float(large_step), t0)
+
+
+def _result(runs: list[_GroupRun], h: int, w: int, large_step: float, t0: float) -> PSSMLTResult:
+    """The :class:`PSSMLTResult` of independent group runs: the mean of their images, the
+    variance of that mean, and the chains' statistics summed over the groups."""
+    groups = len(runs)
     imgs = np.stack([r.image for r in runs])
     mean = imgs.mean(axis=0)
     var = imgs.var(axis=0, ddof=1) / groups
@@ -485,7 +491,7 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
              "nonfinite": sum(r.nonfinite for r in runs), "no_light": not found}
     return PSSMLTResult(
         mean.reshape(h, w, 3), var.reshape(h, w, 3), imgs.reshape(groups, h, w, 3), b, float(b.mean()), found,
-        C, max(r.steps for r in runs), sum(r.chains * r.steps for r in runs), nboot, float(large_step),
+        C, max(r.steps for r in runs), sum(r.chains * r.steps for r in runs), nboot, large_step,
         n_acc / n_prop if n_prop else 0.0,
         (n_acc - n_acc_large) / n_small if n_small else 0.0,
         n_acc_large / n_large if n_large else 0.0,

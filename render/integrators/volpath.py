@@ -176,6 +176,194 @@ def shadow_transmittance(ctx: VolContext, p: np.ndarray, ng: np.ndarray | None, 
 
 
 # ---------------------------------------------------------------- the integrator
+class _Paths:
+    """The live paths of :func:`trace`, one row each: idx (their slot in the radiance array),
+    beta (N, 3) throughput, pdf_prev (density of the ray being traced, solid angle), delta_prev
+    (it left a delta vertex), after_diffuse (a non-delta vertex lies behind), bounces
+    (scattering events so far), last_p (N, 3) the last scattering vertex (for the light density
+    of an emitter hit by sampling), o, d (N, 3) the ray, mid (N,) the medium it travels in (-1:
+    vacuum)."""
+
+    _FIELDS = ("idx", "beta", "pdf_prev", "delta_prev", "after_diffuse", "bounces", "last_p", "o", "d", "mid")
+
+    def __init__(self, o: np.ndarray, d: np.ndarray, mid: np.ndarray):
+        n = len(o)
+        self.idx = np.arange(n)
+        self.beta = np.ones((n, 3))
+        self.pdf_prev = np.zeros(n)
+        self.delta_prev = np.ones(n, bool)  # camera rays: emission seen directly has weight 1
+        self.after_diffuse = np.zeros(n, bool)
+        self.bounces = np.zeros(n, np.int64)
+        self.last_p = o.copy()
+        self.o, self.d, self.mid = o.copy(), d.copy(), mid.copy()
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def keep(self, sel: np.ndarray) -> None:
+        for name in self._FIELDS:
+            setattr(self, name, getattr(self, name)[sel])
+
+
+def _track_media(ms: MediumSet, st: _Paths, h, L: np.ndarray, rng: np.random.Generator):
+    """Free flights of the paths inside media up to their surface hits ``h`` (delta tracking:
+    emission collected, absorbed paths dropped) and boundary crossings (same direction, new
+    medium, not a bounce). Returns (h, cross, scat, t_scat) for the surviving paths: the hits,
+    (N,) bool crossing a boundary, (N,) bool scattering in a medium at distance t_scat."""
+    n = len(st)
+    scat = np.zeros(n, bool)
+    t_scat = np.zeros(n)
+    tb, bm, entering, btri = ms.boundary(st.o, st.d)
+    cross = tb < h.t
+    t_end = np.minimum(h.t, tb)
+    inm = np.nonzero(st.mid >= 0)[0]
+    if len(inm):
+        ev, ts, w, em = ms.delta_track(st.mid[inm], st.o[inm], st.d[inm], t_end[inm], rng)
+        np.add.at(L, st.idx[inm], st.beta[inm] * em)
+        st.beta[inm] *= w
+        gone = np.zeros(n, bool)
+        gone[inm[ev == EV_ABSORB]] = True
+        s = inm[ev == EV_SCATTER]
+        scat[s] = True
+        t_scat[s] = ts[ev == EV_SCATTER]
+        cross &= ~scat
+        st.keep(~gone)
+        h.t, h.tri, h.u, h.v = h.t[~gone], h.tri[~gone], h.u[~gone], h.v[~gone]
+        tb, bm, entering, btri = tb[~gone], bm[~gone], entering[~gone], btri[~gone]
+        cross, scat, t_scat = cross[~gone], scat[~gone], t_scat[~gone]
+    c = np.nonzero(cross)[0]
+    if len(c):
+        x = st.o[c] + tb[c, None] * st.d[c]
+        st.o[c] = spawn_origin(x, ms.geom.normal[btri[c]], st.d[c], ms.geom.extent)
+        st.mid[c] = np.where(entering[c], bm[c], -1)
+    return h, cross, scat, t_scat
+
+
+def _add_emission(ps: PreparedScene, st: _Paths, si, tri, p, ng, obj, L, strategy: str, hexp: float) -> None:
+    """Emission found at surface vertices si (triangles tri, points p, normals ng, objects obj),
+    MIS-weighted against light sampling unless the previous vertex was delta."""
+    mats, lights = ps.mats, ps.lights
+    em = mats.emits[obj]
+    if not np.any(em):
+        return
+    e = np.nonzero(em)[0]
+    cos_l = -np.einsum("ij,ij->i", st.d[si][e], ng[e])
+    front = mats.two_sided[obj[e]] | (cos_l > 0)
+    dist = np.linalg.norm(p[e] - st.last_p[si[e]], axis=1)
+    w = np.ones(len(e))
+    nd = ~st.delta_prev[si[e]]
+    if np.any(nd) and not lights.empty and strategy != "bsdf":
+        if strategy == "light":
+            w[nd] = 0.0
+        else:
+            pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
+            w[nd] = mis_weight(st.pdf_prev[si[e[nd]]], pl, hexp)
+    np.add.at(L, st.idx[si[e]], st.beta[si[e]] * mats.Le[obj[e]] * (w * front)[:, None])
+
+
+def _surface_frames(ps: PreparedScene, st: _Paths, sa, tri, hu, hv, ng):
+    """BSDF frames and local wo at live surface vertices sa: (objects, normal, t1, t2, wo_l, albedo)."""
+    mats, geom = ps.mats, ps.geom
+    objs = geom.obj[tri]
+    nrm = _frames(mats, objs, ng, st.d[sa])
+    t1, t2 = orthonormal_frame(nrm)
+    wo_l = to_local(-st.d[sa], t1, t2, nrm)
+    alb = mats.diffuse_albedo(objs, lambda m: geom.texcoords(tri[m], hu[m], hv[m]))
+    return objs, nrm, t1, t2, wo_l, alb
+
+
+def _next_event(ctx: VolContext, st: _Paths, sa, ma, p_s, ng_s, frames, pm, L, rng, strategy: str,
+                hexp: float) -> None:
+    """Next-event estimation at surface vertices sa (points p_s, normals ng_s, BSDF ``frames``)
+    and medium vertices ma (points pm): one light sample each, its shadow ray attenuated by the
+    media it crosses, MIS-weighted against BSDF / phase sampling."""
+    ps, ms = ctx.ps, ctx.media
+    nsv = len(sa)
+    pts = np.concatenate([p_s, pm])
+    lsmp = ps.lights.sample(pts, rng.random(len(pts)), rng.random((len(pts), 2)))
+    f = np.zeros((len(pts), 3))
+    pb = np.zeros(len(pts))
+    if nsv:
+        objs, nrm, t1, t2, wo_l, alb = frames
+        wi_l = to_local(lsmp.wi[:nsv], t1, t2, nrm)
+        fs, pbs = surface_eval(ps.mats, objs, alb, wo_l, wi_l)
+        f[:nsv] = fs * np.abs(wi_l[:, 2:3])
+        pb[:nsv] = pbs
+    if len(ma):
+        ph = hg_pdf(ms.g[st.mid[ma]], st.d[ma], lsmp.wi[nsv:])
+        f[nsv:] = ph[:, None]
+        pb[nsv:] = ph
+    ok = lsmp.valid & (f.max(axis=1) > 0)
+    if strategy == "bsdf":
+        ok &= lsmp.delta
+    if not np.any(ok):
+        return
+    k = np.nonzero(ok)[0]
+    surf_k = k < nsv
+    start_mid = np.concatenate([st.mid[sa], st.mid[ma]])[k]
+    # medium points: no offset (the sample lies inside the medium)
+    o_sh = pts[k].copy()
+    if np.any(surf_k):
+        o_sh[surf_k] = spawn_origin(pts[k[surf_k]], ng_s[k[surf_k]], lsmp.wi[k[surf_k]], ps.geom.extent)
+    T = shadow_transmittance(ctx, o_sh, None, lsmp.wi[k], lsmp.dist[k], start_mid, rng)
+    w = (np.ones(len(k)) if strategy == "light"
+         else np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], hexp)))
+    contrib = f[k] * lsmp.Li[k] * T * (w / lsmp.pdf[k])[:, None]
+    owner = np.concatenate([sa, ma])[k]
+    np.add.at(L, st.idx[owner], st.beta[owner] * contrib)
+
+
+def _scatter(ctx: VolContext, st: _Paths, sa, ma, p_s, ng_s, frames, pm, rng, caustics: bool) -> np.ndarray:
+    """The next ray of every live vertex: a BSDF sample at surface vertices sa, a phase sample
+    at medium vertices ma (the state's o, d and MIS bookkeeping updated). Returns (N,) bool:
+    the path continues (without 'caustics', not along a delta sample after a diffuse vertex)."""
+    ps, ms = ctx.ps, ctx.media
+    nxt = np.zeros(len(st), bool)
+    new_d = st.d.copy()
+    new_o = st.o.copy()
+    if len(sa):
+        objs, nrm, t1, t2, wo_l, alb = frames
+        bs = surface_sample(ps.mats, objs, alb, wo_l, rng.random(len(sa)), rng.random((len(sa), 2)))
+        wi = to_world(bs.wi, t1, t2, nrm)
+        ok = bs.valid
+        if not caustics:
+            ok &= ~(bs.delta & st.after_diffuse[sa])
+        st.beta[sa] *= bs.weight
+        st.pdf_prev[sa] = bs.pdf
+        st.delta_prev[sa] = bs.delta
+        st.after_diffuse[sa] |= ~bs.delta
+        new_d[sa] = wi
+        new_o[sa] = spawn_origin(p_s, ng_s, wi, ps.geom.extent)
+        st.last_p[sa] = p_s
+        nxt[sa[ok]] = True
+    if len(ma):
+        wi = hg_sample(ms.g[st.mid[ma]], st.d[ma], rng.random((len(ma), 2)))
+        st.pdf_prev[ma] = hg_pdf(ms.g[st.mid[ma]], st.d[ma], wi)
+        st.delta_prev[ma] = False
+        st.after_diffuse[ma] = True
+        new_d[ma] = wi
+        new_o[ma] = pm
+        st.last_p[ma] = pm
+        nxt[ma] = True
+    bounced = np.zeros(len(st), bool)
+    bounced[sa] = True
+    bounced[ma] = True
+    st.bounces[bounced] += 1
+    st.o, st.d = new_o, new_d
+    return nxt
+
+
+def _roulette(st: _Paths, nxt: np.ndarray, rr_depth: int, rng: np.random.Generator) -> None:
+    """Russian roulette on continuing paths whose last vertex had index >= rr_depth: survive
+    with min(1, max(beta)), survivors divided by it (nxt updated in place)."""
+    rr = np.nonzero(nxt & (st.bounces > rr_depth))[0]
+    if len(rr):
+        q = np.minimum(1.0, st.beta[rr].max(axis=1))
+        live = rng.random(len(rr)) < q
+        st.beta[rr[live]] /= q[live, None]
+        nxt[rr[~live]] = False
+
+
 def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: np.random.Generator,
           max_depth: int = 8, rr_depth: int = 3, roulette: bool = True, caustics: bool = True,
           heuristic: str = "power", strategy: str = "mis") -> np.ndarray:
@@ -185,187 +373,56 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
     "light" (NEE only: emission reached by a BSDF or phase sample counts only after a delta
     vertex) or "bsdf" (no NEE towards area sources; delta lights keep NEE, nothing else finds
     them). All three are unbiased; Veach's MIS scene shows where each wins. heuristic: "power"
-    or "balance" (MIS weights)."""
+    or "balance" (MIS weights).
+
+    Each round: surface hits for every live path, free flights through media
+    (:func:`_track_media`), background for escaping rays, emission at surface hits
+    (:func:`_add_emission`), next-event estimation (:func:`_next_event`), the next rays
+    (:func:`_scatter`), Russian roulette (:func:`_roulette`)."""
     check_strategy(strategy)
     hexp = heuristic_exponent(heuristic)
     ps = ctx.ps
-    mats, lights, geom = ps.mats, ps.lights, ps.geom
+    geom = ps.geom
     ms = ctx.media
-    n = len(o)
-    L = np.zeros((n, 3))
-    idx = np.arange(n)
-    beta = np.ones((n, 3))
-    pdf_prev = np.zeros(n)
-    delta_prev = np.ones(n, bool)  # camera rays: emission seen directly has weight 1
-    after_diffuse = np.zeros(n, bool)
-    bounces = np.zeros(n, np.int64)
-    last_p = o.copy()  # last scattering vertex (for the light pdf of emitters hit by sampling)
-    o, d, mid = o.copy(), d.copy(), mid.copy()
-    extent = geom.extent
+    L = np.zeros((len(o), 3))
+    st = _Paths(o, d, mid)
     bg = ps.background
     has_bg = bool(bg.max() > 0)
-    can_nee = not lights.empty
-
-    def keep(sel):
-        nonlocal idx, beta, pdf_prev, delta_prev, after_diffuse, bounces, last_p, o, d, mid
-        idx, beta, pdf_prev, delta_prev = idx[sel], beta[sel], pdf_prev[sel], delta_prev[sel]
-        after_diffuse, bounces, last_p, o, d, mid = after_diffuse[sel], bounces[sel], last_p[sel], o[sel], d[sel], mid[sel]
-
     for _ in range(4 * (max_depth + 1) + _MAX_CROSSINGS):
-        if len(idx) == 0:
+        if len(st) == 0:
             break
-        h = ps.accel.intersect(o, d)
-        t_end = h.t.copy()
-        cross = np.zeros(len(idx), bool)
-        scat = np.zeros(len(idx), bool)
-        t_scat = np.zeros(len(idx))
+        h = ps.accel.intersect(st.o, st.d)
+        cross = np.zeros(len(st), bool)
+        scat = np.zeros(len(st), bool)
+        t_scat = np.zeros(len(st))
         if ms is not None:
-            tb, bm, entering, btri = ms.boundary(o, d)
-            cross = tb < h.t
-            t_end = np.minimum(h.t, tb)
-            inm = np.nonzero(mid >= 0)[0]
-            if len(inm):
-                ev, ts, w, em = ms.delta_track(mid[inm], o[inm], d[inm], t_end[inm], rng)
-                np.add.at(L, idx[inm], beta[inm] * em)
-                beta[inm] *= w
-                gone = np.zeros(len(idx), bool)
-                gone[inm[ev == EV_ABSORB]] = True
-                s = inm[ev == EV_SCATTER]
-                scat[s] = True
-                t_scat[s] = ts[ev == EV_SCATTER]
-                cross &= ~scat
-                keep(~gone)
-                h.t, h.tri, h.u, h.v = h.t[~gone], h.tri[~gone], h.u[~gone], h.v[~gone]
-                tb, bm, entering, btri = tb[~gone], bm[~gone], entering[~gone], btri[~gone]
-                cross, scat, t_scat = cross[~gone], scat[~gone], t_scat[~gone]
-            # boundary crossings: same direction, new medium, not a bounce
-            c = np.nonzero(cross)[0]
-            if len(c):
-                x = o[c] + tb[c, None] * d[c]
-                o[c] = spawn_origin(x, ms.geom.normal[btri[c]], d[c], ms.geom.extent)
-                mid[c] = np.where(entering[c], bm[c], -1)
+            h, cross, scat, t_scat = _track_media(ms, st, h, L, rng)
         surf = ~cross & ~scat & (h.tri >= 0)
         esc = ~cross & ~scat & (h.tri < 0)
         if has_bg and np.any(esc):
-            np.add.at(L, idx[esc], beta[esc] * bg)
-        # ------------------------------------------------ surface vertices
+            np.add.at(L, st.idx[esc], st.beta[esc] * bg)
+        # surface vertices
         si = np.nonzero(surf)[0]
         tri = h.tri[si]
         p, ng = geom.point_normal(tri, h.u[si], h.v[si])
         obj = geom.obj[tri]
-        ds = d[si]
-        # emission (MIS against light sampling unless the previous vertex was delta)
-        em = mats.emits[obj]
-        if np.any(em):
-            e = np.nonzero(em)[0]
-            cos_l = -np.einsum("ij,ij->i", ds[e], ng[e])
-            front = mats.two_sided[obj[e]] | (cos_l > 0)
-            dist = np.linalg.norm(p[e] - last_p[si[e]], axis=1)
-            w = np.ones(len(e))
-            nd = ~delta_prev[si[e]]
-            if np.any(nd) and can_nee and strategy != "bsdf":
-                if strategy == "light":
-                    w[nd] = 0.0
-                else:
-                    pl = lights.pdf_hit(tri[e[nd]], dist[nd], cos_l[nd])
-                    w[nd] = mis_weight(pdf_prev[si[e[nd]]], pl, hexp)
-            np.add.at(L, idx[si[e]], beta[si[e]] * mats.Le[obj[e]] * (w * front)[:, None])
-        kind = mats.kind[obj]
-        alive_s = (kind != EMISSIVE) & (bounces[si] < max_depth)
-        # ------------------------------------------------ medium vertices
+        _add_emission(ps, st, si, tri, p, ng, obj, L, strategy, hexp)
+        alive_s = (ps.mats.kind[obj] != EMISSIVE) & (st.bounces[si] < max_depth)
+        # medium vertices
         mi = np.nonzero(scat)[0]
-        pm = o[mi] + t_scat[mi, None] * d[mi]
-        alive_m = bounces[mi] < max_depth
-        # ------------------------------------------------ next-event estimation
-        sa = si[alive_s]
-        ma = mi[alive_m]
-        nsv = len(sa)
-        if can_nee and nsv + len(ma):
-            pts = np.concatenate([p[alive_s], pm[alive_m]])
-            lsmp = lights.sample(pts, rng.random(len(pts)), rng.random((len(pts), 2)))
-            f = np.zeros((len(pts), 3))
-            pb = np.zeros(len(pts))
-            if nsv:
-                objs = obj[alive_s]
-                nrm = _frames(mats, objs, ng[alive_s], d[sa])
-                t1, t2 = orthonormal_frame(nrm)
-                wo_l = to_local(-d[sa], t1, t2, nrm)
-                wi_l = to_local(lsmp.wi[:nsv], t1, t2, nrm)
-                alb = mats.diffuse_albedo(objs, lambda m: geom.texcoords(tri[alive_s][m], h.u[sa][m], h.v[sa][m]))
-                fs, pbs = surface_eval(mats, objs, alb, wo_l, wi_l)
-                f[:nsv] = fs * np.abs(wi_l[:, 2:3])
-                pb[:nsv] = pbs
-            if len(ma):
-                ph = hg_pdf(ms.g[mid[ma]], d[ma], lsmp.wi[nsv:])
-                f[nsv:] = ph[:, None]
-                pb[nsv:] = ph
-            ok = lsmp.valid & (f.max(axis=1) > 0)
-            if strategy == "bsdf":
-                ok &= lsmp.delta
-            if np.any(ok):
-                k = np.nonzero(ok)[0]
-                ngs = np.zeros((len(k), 3))
-                surf_k = k < nsv
-                ngs[surf_k] = ng[alive_s][k[surf_k]]
-                start_mid = np.concatenate([mid[sa], mid[ma]])[k]
-                # medium points: no offset (the sample lies inside the medium)
-                o_sh = pts[k].copy()
-                if np.any(surf_k):
-                    o_sh[surf_k] = spawn_origin(pts[k[surf_k]], ngs[surf_k], lsmp.wi[k[surf_k]], extent)
-                T = shadow_transmittance(ctx, o_sh, None, lsmp.wi[k], lsmp.dist[k], start_mid, rng)
-                w = (np.ones(len(k)) if strategy == "light"
-                     else np.where(lsmp.delta[k], 1.0, mis_weight(lsmp.pdf[k], pb[k], hexp)))
-                contrib = f[k] * lsmp.Li[k] * T * (w / lsmp.pdf[k])[:, None]
-                owner = np.concatenate([sa, ma])[k]
-                np.add.at(L, idx[owner], beta[owner] * contrib)
-        # ------------------------------------------------ continue: surface BSDF samples
-        nxt = np.zeros(len(idx), bool)
-        new_d = d.copy()
-        new_o = o.copy()
-        if nsv:
-            objs = obj[alive_s]
-            nrm = _frames(mats, objs, ng[alive_s], d[sa])
-            t1, t2 = orthonormal_frame(nrm)
-            wo_l = to_local(-d[sa], t1, t2, nrm)
-            alb = mats.diffuse_albedo(objs, lambda m: geom.texcoords(tri[alive_s][m], h.u[sa][m], h.v[sa][m]))
-            bs = surface_sample(mats, objs, alb, wo_l, rng.random(nsv), rng.random((nsv, 2)))
-            wi = to_world(bs.wi, t1, t2, nrm)
-            ok = bs.valid
-            if not caustics:
-                ok &= ~(bs.delta & after_diffuse[sa])
-            beta[sa] *= bs.weight
-            pdf_prev[sa] = bs.pdf
-            delta_prev[sa] = bs.delta
-            after_diffuse[sa] |= ~bs.delta
-            new_d[sa] = wi
-            new_o[sa] = spawn_origin(p[alive_s], ng[alive_s], wi, extent)
-            last_p[sa] = p[alive_s]
-            nxt[sa[ok]] = True
-        if len(ma):
-            wi = hg_sample(ms.g[mid[ma]], d[ma], rng.random((len(ma), 2)))
-            pdf_prev[ma] = hg_pdf(ms.g[mid[ma]], d[ma], wi)
-            delta_prev[ma] = False
-            after_diffuse[ma] = True
-            new_d[ma] = wi
-            new_o[ma] = pm[alive_m]
-            last_p[ma] = pm[alive_m]
-            nxt[ma] = True
-        bounced = np.zeros(len(idx), bool)
-        bounced[sa] = True
-        bounced[ma] = True
-        bounces[bounced] += 1
-        # Russian roulette when leaving vertices of index >= rr_depth
+        pm = st.o[mi] + t_scat[mi, None] * st.d[mi]
+        alive_m = st.bounces[mi] < max_depth
+        sa, ma = si[alive_s], mi[alive_m]
+        p_s, ng_s, pm = p[alive_s], ng[alive_s], pm[alive_m]
+        frames = _surface_frames(ps, st, sa, tri[alive_s], h.u[sa], h.v[sa], ng_s) if len(sa) else None
+        if not ps.lights.empty and len(sa) + len(ma):
+            _next_event(ctx, st, sa, ma, p_s, ng_s, frames, pm, L, rng, strategy, hexp)
+        nxt = _scatter(ctx, st, sa, ma, p_s, ng_s, frames, pm, rng, caustics)
         if roulette:
-            rr = np.nonzero(nxt & (bounces > rr_depth))[0]
-            if len(rr):
-                q = np.minimum(1.0, beta[rr].max(axis=1))
-                live = rng.random(len(rr)) < q
-                beta[rr[live]] /= q[live, None]
-                nxt[rr[~live]] = False
+            _roulette(st, nxt, rr_depth, rng)
         nxt |= cross
-        nxt &= beta.max(axis=1) > 0
-        o, d = new_o, new_d
-        keep(nxt)
+        nxt &= st.beta.max(axis=1) > 0
+        st.keep(nxt)
     return L
 
 
