@@ -73,26 +73,32 @@ def import_graph(root: Path = ROOT, packages=PACKAGES) -> dict[str, set[str]]:
             for m, f in files.items()}
 
 
-def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
-    """One cycle as [a, b, ..., a], or None (iterative depth-first search, modules in name order)."""
-    state = {}  # 1: on the current path, 2: done
-    for start in sorted(graph):
-        if start in state:
+def _reach(graph: dict[str, set[str]], start: str) -> set[str]:
+    seen, todo = {start}, [start]
+    while todo:
+        for nxt in graph.get(todo.pop(), ()):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every group of modules that import each other (directly or through others): the
+    strongly connected components of more than one module, each sorted, in name order."""
+    reverse = {m: set() for m in graph}
+    for m, deps in graph.items():
+        for d in deps:
+            reverse.setdefault(d, set()).add(m)
+    out, done = [], set()
+    for m in sorted(graph):
+        if m in done:
             continue
-        path, stack = [start], [iter(sorted(graph[start]))]
-        state[start] = 1
-        while stack:
-            nxt = next(stack[-1], None)
-            if nxt is None:
-                state[path.pop()] = 2
-                stack.pop()
-            elif state.get(nxt) == 1:
-                return path[path.index(nxt):] + [nxt]
-            elif nxt not in state and nxt in graph:
-                state[nxt] = 1
-                path.append(nxt)
-                stack.append(iter(sorted(graph[nxt])))
-    return None
+        scc = _reach(graph, m) & _reach(reverse, m)
+        done |= scc
+        if len(scc) > 1:
+            out.append(sorted(scc))
+    return out
 
 
 def upward_imports(graph: dict[str, set[str]]) -> list[str]:
@@ -125,8 +131,8 @@ def importlib_uses(root: Path = ROOT, package: str = "render") -> list[str]:
 
 
 def test_no_import_cycles():
-    cycle = find_cycle(import_graph())
-    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+    cycles = import_cycles(import_graph())
+    assert cycles == [], "modules importing each other: " + "; ".join(" <-> ".join(c) for c in cycles)
 
 
 def test_layers_import_downwards_only():
@@ -156,12 +162,11 @@ def test_the_graph_sees_what_it_must(tmp_path):
     assert g["render.integrators"] == {"render.integrators.path"}
     assert g["render.film"] == {"render.integrators.path"}
     assert g["recon.nerf"] == {"render.integrators.path"}
-    cycle = find_cycle(g)
-    assert cycle[0] == cycle[-1] and set(cycle) == {"render.film", "render.integrators.path"}
+    assert import_cycles(g) == [["render.film", "render.integrators.path"]]
     assert upward_imports(g) == ["rig.capture -> recon.nerf"]
     assert importlib_uses(tmp_path) == ["render.integrators.path: 2"]
     (tmp_path / "render" / "film.py").write_text("")
-    assert find_cycle(import_graph(tmp_path, ("render", "rig", "recon"))) is None
+    assert import_cycles(import_graph(tmp_path, ("render", "rig", "recon"))) == []
 
 
 @pytest.mark.parametrize("package", PACKAGES)
