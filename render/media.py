@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from .accel import Accel, Geometry, spawn_origin
-from .sampling import INV_PI, orthonormal_frame, uniform_sphere
+from .sampling import orthonormal_frame
 from .scene import Lambertian, Medium, Scene, SceneObject
 
 __all__ = ["hg_pdf", "hg_sample", "MajorantError", "MediumSet", "EV_PASS", "EV_SCATTER", "EV_ABSORB"]

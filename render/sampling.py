@@ -18,7 +18,7 @@ import numpy as np
 __all__ = [
     "path_keys", "uniform", "uniform_block", "INV_PI",
     "concentric_disk", "cosine_hemisphere", "cosine_hemisphere_pdf",
-    "uniform_hemisphere", "uniform_hemisphere_pdf", "uniform_sphere", "uniform_sphere_pdf",
+    "uniform_sphere",
     "uniform_triangle", "balance_heuristic", "power_heuristic", "mis_weight",
     "orthonormal_frame", "to_local", "to_world", "dot3", "max3",
 ]
@@ -107,28 +107,12 @@ def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:
     return np.maximum(cos_theta, 0.0) * INV_PI
 
 
-def uniform_hemisphere(u: np.ndarray) -> np.ndarray:
-    """Uniform directions on the +z hemisphere: u (N, 2) -> (N, 3); density 1 / (2 pi)."""
-    z = u[:, 0]
-    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
-    phi = 2 * np.pi * u[:, 1]
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
-def uniform_hemisphere_pdf(n: int) -> np.ndarray:
-    return np.full(n, 0.5 * INV_PI)
-
-
 def uniform_sphere(u: np.ndarray) -> np.ndarray:
     """Uniform directions on the unit sphere: u (N, 2) -> (N, 3); density 1 / (4 pi)."""
     z = 1.0 - 2.0 * u[:, 0]
     r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
     phi = 2 * np.pi * u[:, 1]
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
-def uniform_sphere_pdf(n: int) -> np.ndarray:
-    return np.full(n, 0.25 * INV_PI)
 
 
 def uniform_triangle(u: np.ndarray) -> np.ndarray:

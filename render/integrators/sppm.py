@@ -67,7 +67,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..accel import spawn_origin
-from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample, lambert_sample
+from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample
 from ..camera import Camera
 from ..film import Film, RenderResult, whole_groups
 from ..lights import sample_emission
