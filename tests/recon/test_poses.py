@@ -224,8 +224,12 @@ def check_outputs(out: Path, capture: Path, expected: list[str]) -> list[Camera]
     np.testing.assert_allclose([c.cam_to_world for c in col], [c.cam_to_world for c in cams], atol=1e-9)
     for split in ("train", "test"):
         doc = json.loads((out / f"transforms_{split}.json").read_text())
-        for f in doc["frames"]:
-            assert (out / f["file_path"]).is_file()  # paths point at the capture's images
+        for f in doc["frames"]:  # Blender convention: paths without extension (its loaders add .png)
+            assert (out / (f["file_path"] + ".png")).is_file()  # paths point at the capture's images
+    doc = json.loads((out / "transforms.json").read_text())  # nerfstudio's: every split, masks and depth
+    assert len(doc["frames"]) == len(cams) and len(doc["test_filenames"]) == splits.count("test")
+    for f in doc["frames"]:
+        assert all((out / f[k]).is_file() for k in ("file_path", "mask_path", "depth_file_path"))
         tr = read_transforms_json(out / f"transforms_{split}.json")
         by = {c.name: c for c in cams}
         np.testing.assert_allclose([c.cam_to_world for c in tr], [by[c.name].cam_to_world for c in tr], atol=1e-9)
