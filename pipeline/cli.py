@@ -10,7 +10,10 @@ from typing import Optional
 
 import typer
 
+from recon.slab.layout import LayoutConfig
+
 from .artifacts import DEFAULT_ROOT, BadInput, stage_dir
+from .params import RunParams
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="lumigraph: capture, estimate poses, build light slabs and NeRFs, validate against a path tracer.")
@@ -134,8 +137,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          method: str = typer.Option("direct", help="direct (sheared cameras through the rig) | rebin (from the captures)"),
          mode: str = typer.Option("depth", help="nearest | uv | st | quadrilinear | depth"),
          layout: str = typer.Option("ring", help="ring (slabs around the turntable axis) | box (six faces)"),
-         uv_res: int = typer.Option(8, help="uv samples along a uv quad's longer side"),
-         st_res: int = typer.Option(384, help="st samples along an st quad's longer side"),
+         uv_res: int = typer.Option(LayoutConfig.uv_res, help="uv samples along a uv quad's longer side"),
+         st_res: int = typer.Option(LayoutConfig.st_res, help="st samples along an st quad's longer side"),
          compress: bool = typer.Option(True, "--compress/--no-compress",
                                        help="also vector-quantize the slabs and score the views from them"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
@@ -176,10 +179,11 @@ def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          quiet: bool = QUIET,
          overwrite: bool = OVERWRITE):
     """Train a radiance field from a capture; render and score its held-out views."""
-    from .stages.nerf import run_nerf
+    from .stages.nerf import NerfStageConfig, run_nerf
 
     out = out or capture_dir.parent / "nerf" / model
-    m = run_nerf(capture_dir, poses, model, minutes, out, reference, downsample, seed, resume=resume, quiet=quiet,
+    cfg = NerfStageConfig(model=model, minutes=minutes, downsample=downsample, seed=seed)
+    m = run_nerf(capture_dir, poses, out, cfg, reference, resume=resume, quiet=quiet,
                  cluster=_cluster(scheduler, workers), overwrite=overwrite)
     mt = m["metrics"]
     typer.echo(f"nerf {model}: PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} after {mt['steps']} steps "
@@ -242,7 +246,7 @@ def export(capture_dir: Path = typer.Argument(..., help="a capture folder"),
            quiet: bool = QUIET,
            overwrite: bool = OVERWRITE):
     """Write a capture as nerfstudio, instant-ngp or COLMAP (binary model with 3D points) open it."""
-    from .export import run_export
+    from .stages.export import run_export
 
     out = out or capture_dir.parent / "export" / format
     m = run_export(capture_dir, format, out, quiet=quiet, overwrite=overwrite)
@@ -259,25 +263,26 @@ def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
 
 
 @app.command()
-def run(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML"),
+def run(scene: str = typer.Argument(RunParams.scene, help="built-in scene name or path to a scene YAML"),
         root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
         seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
-        spp: int = typer.Option(16, help="reference samples per pixel"),
-        colmap_image_scale: float = typer.Option(0.5, help="COLMAP's image scale (params.yaml poses.image_scale)"),
-        nerf_model: str = typer.Option("fast", help="NeRF model"),
-        nerf_minutes: float = typer.Option(4.0, help="NeRF training budget (0: skip the NeRF)"),
+        spp: int = typer.Option(RunParams.reference_spp, help="reference samples per pixel"),
+        colmap_image_scale: float = typer.Option(RunParams.poses_image_scale, help="COLMAP's image scale"),
+        nerf_model: str = typer.Option(RunParams.nerf_model, help="NeRF model"),
+        nerf_minutes: float = typer.Option(RunParams.nerf_minutes, help="NeRF training budget (0: skip the NeRF)"),
         scheduler: Optional[str] = SCHEDULER,
         workers: Optional[int] = WORKERS,
         quiet: bool = QUIET,
         overwrite: bool = OVERWRITE):
     """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, NeRF, validate,
     report; ends with the report's path. One engine (in process, a local cluster or --scheduler's)
-    serves every stage's units of work."""
+    serves every stage's units of work. Defaults: params.yaml's (pipeline.params.RunParams)."""
     from .pipeline_run import run_pipeline
 
     rig, path = _load(scene)
-    summary = run_pipeline(rig, path, Path(root), seed=seed, spp=spp, colmap_image_scale=colmap_image_scale,
-                           nerf_model=nerf_model, nerf_minutes=nerf_minutes, quiet=quiet,
+    params = RunParams(scene=scene, reference_spp=spp, poses_image_scale=colmap_image_scale, nerf_model=nerf_model,
+                       nerf_minutes=nerf_minutes)
+    summary = run_pipeline(rig, path, Path(root), params, seed=seed, quiet=quiet,
                            cluster=_cluster(scheduler, workers), overwrite=overwrite)
     for line in summary:
         typer.echo(line)

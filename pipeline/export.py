@@ -8,7 +8,7 @@ Two layers:
   held-out views), per-frame ``mask_path`` and ``depth_file_path``, ``applied_transform`` (identity:
   the poses are in the scene's own world frame, nothing was applied) and the depth unit. One file
   for every split, so nerfstudio normalises train and eval poses together.
-* ``lumigraph export CAPTURE --format F`` (:func:`run_export`) writes what a shared folder cannot
+* ``lumigraph export CAPTURE --format F`` (:func:`pipeline.stages.export.run_export`) writes what a shared folder cannot
   serve, into its own stage folder (atomic, with a manifest):
 
   - ``nerfstudio``: images, masks and 16-bit PNG depth in millimetres (nerfstudio's default
@@ -41,10 +41,9 @@ from render.camera import Camera
 from render.camera_io import ColmapPoints, write_colmap_model, write_transforms_json
 from render.image_io import read_exr, read_png
 
-from .artifacts import BadInput, Manifest, atomic_stage, check_out
-from .progress import progress_bar
+from .artifacts import BadInput
 
-__all__ = ["FORMATS", "write_nerfstudio_transforms", "run_export", "ngp_framing", "depth_points",
+__all__ = ["FORMATS", "EXPORTERS", "write_nerfstudio_transforms", "ngp_framing", "depth_points", "relpath",
            "NGP_DEPTH_MAX_M", "NS_DEPTH_UNIT_M"]
 
 FORMATS = ("nerfstudio", "instant-ngp", "colmap")
@@ -265,30 +264,10 @@ def _export_colmap(tmp: Path, cap: Path, cams: list[Camera], splits: list[str], 
     return {"views": len(names), "points3D": int(len(points.xyz)), "mean_track_length": float(track.mean())}
 
 
-def run_export(capture_dir: Path, fmt: str, out: Path, quiet: bool = False, overwrite: bool = False) -> dict:
-    """Export the capture ``capture_dir`` as ``fmt`` (:data:`FORMATS`) into ``out`` atomically.
-
-    BadInput (one line naming the option, file or field), before anything is written, for an
-    unknown format, a folder that is not a finished capture (or lacks a view's image, mask, depth
-    or linear file) and an ``out`` holding anything but a finished export unless ``overwrite``."""
-    from .stages.capture import check_capture_folder
-
-    if fmt not in FORMATS:
-        raise BadInput(f"--format: unknown format {fmt!r} (known: {', '.join(FORMATS)})")
-    out = Path(out)
-    check_out(out, "export", overwrite)
-    need = ("images", "linear", "depth", "masks")
-    cams, splits = check_capture_folder(Path(capture_dir), need=need)
-    manifest = Manifest("export", params={"format": fmt, "capture": str(capture_dir)})
-    manifest.add_input(Path(capture_dir) / "cameras.json")
-    writer = {"nerfstudio": _export_nerfstudio, "instant-ngp": _export_instant_ngp, "colmap": _export_colmap}[fmt]
-    with atomic_stage(out, "export", overwrite) as tmp, progress_bar(quiet) as bar:
-        task = bar.add_task(f"export {fmt}", total=len(cams))
-        manifest.metrics = writer(tmp, Path(capture_dir), cams, splits, bar, task)
-        result = manifest.write(tmp)
-    return result
-
-
 def relpath(target: Path, start: Path) -> str:
     """``target`` relative to the folder ``start`` (both resolved), with forward slashes."""
     return Path(os.path.relpath(Path(target).resolve(), Path(start).resolve())).as_posix()
+
+
+#: format -> writer(tmp folder, capture folder, cameras, splits, progress bar, task) -> metrics
+EXPORTERS = {"nerfstudio": _export_nerfstudio, "instant-ngp": _export_instant_ngp, "colmap": _export_colmap}
