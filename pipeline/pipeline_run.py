@@ -1,4 +1,5 @@
-"""``lumigraph run``: every stage in order for one scene, with the defaults of params.yaml."""
+"""``lumigraph run``: every stage in order for one scene, with the defaults of params.yaml
+(:class:`pipeline.params.RunParams`)."""
 from __future__ import annotations
 
 import time
@@ -9,32 +10,35 @@ from rig.build import RigScene
 from .artifacts import BadInput, stage_dir
 from .distributed import ClusterConfig, engine
 from .inspect import inspect_folder
+from .params import RunParams
 
 __all__ = ["run_pipeline", "slab_layout_for", "ST_SAMPLES_PER_CAPTURE_PIXEL"]
 
-#: slab st samples per capture pixel across: the slab study chose st 384 on 1280-wide captures
-#: (docs/architecture.md, light slab defaults), 0.3 per pixel; smaller captures get
-#: proportionally fewer (never more than LayoutConfig's default), so the slab stage's work
-#: follows the scene's resolution instead of the demo's
-ST_SAMPLES_PER_CAPTURE_PIXEL = 384 / 1280
+#: width (pixels) of the default scene's captures, on which the slab study chose the default st
+#: resolution (docs/architecture.md, light slab defaults)
+STUDY_CAPTURE_WIDTH = 1280
+#: slab st samples per capture pixel across (0.3 at st 384 on 1280-wide captures); smaller captures
+#: get proportionally fewer (never more than the params' st_res), so the slab stage's work follows
+#: the scene's resolution instead of the demo's
+ST_SAMPLES_PER_CAPTURE_PIXEL = RunParams.slab_st_res / STUDY_CAPTURE_WIDTH
 
 
-def slab_layout_for(rig: RigScene):
-    """The slab layout ``lumigraph run`` uses: LayoutConfig's defaults with st_res =
-    min(default, ceil(ST_SAMPLES_PER_CAPTURE_PIXEL x the widest train/test view)), at least 8
-    (the default 1280-wide turntable keeps st 384)."""
+def slab_layout_for(rig: RigScene, params: RunParams = RunParams()):
+    """The slab layout ``lumigraph run`` uses: LayoutConfig's other defaults, uv_res =
+    params.slab_uv_res and st_res = min(params.slab_st_res, ceil(ST_SAMPLES_PER_CAPTURE_PIXEL x the
+    widest train/test view)), at least 8 (the default 1280-wide turntable keeps st 384)."""
     import math
 
     from recon.slab import LayoutConfig
 
-    default = LayoutConfig()
     widest = max((c.intrinsics.width for s in ("train", "test") for c in rig.cameras.get(s, [])), default=0)
-    return LayoutConfig(st_res=min(default.st_res, max(8, math.ceil(ST_SAMPLES_PER_CAPTURE_PIXEL * widest))))
+    st = min(params.slab_st_res, max(8, math.ceil(ST_SAMPLES_PER_CAPTURE_PIXEL * widest)))
+    return LayoutConfig(uv_res=params.slab_uv_res, st_res=st)
 
 
-def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None = None, spp: int = 16,
-                 colmap_image_scale: float = 0.5, nerf_model: str = "fast", nerf_minutes: float = 4.0,
-                 quiet: bool = False, cluster: ClusterConfig | None = None, overwrite: bool = False) -> list[str]:
+def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams = RunParams(),
+                 seed: int | None = None, quiet: bool = False, cluster: ClusterConfig | None = None,
+                 overwrite: bool = False) -> list[str]:
     """Run capture, reference, poses (gt, colmap, charuco when the scene has a board), slab (direct,
     and rebinned on COLMAP's cameras when they exist; layout :func:`slab_layout_for`), NeRF,
     validate and report.
@@ -48,13 +52,16 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
     Returns summary lines, the last one the report's path. A stage that fails on its input
     (BadInput) stops the run, except a failed pose estimate: that is a finding, recorded in its
     metrics.json and shown by the report, and only the models built on it are skipped.
-    nerf_minutes 0 skips the NeRF.
+    params: reference spp, COLMAP's image scale, slab resolution, NeRF model and minutes (0 skips
+    the NeRF); seed: every stage's (None: the spec's for the capture, 0 for the others).
     """
+    spp, colmap_image_scale = params.reference_spp, params.poses_image_scale
+    nerf_model, nerf_minutes = params.nerf_model, params.nerf_minutes
     from recon.poses import ColmapConfig
 
     from .report import write_report
     from .stages.capture import run_capture
-    from .stages.nerf import run_nerf
+    from .stages.nerf import NerfStageConfig, run_nerf
     from .stages.poses import PosesConfig, run_poses
     from .stages.reference import run_reference
     from .stages.slab import SlabStageConfig, run_slab
@@ -95,7 +102,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
             return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
                     f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
 
-        layout = slab_layout_for(rig)
+        layout = slab_layout_for(rig, params)
         m = run_slab(cap, None, stage_dir(name, "slab", root), SlabStageConfig(layout=layout), reference_dir=ref,
                      quiet=quiet, cluster=eng, overwrite=overwrite)
         lines.append(slab_line("slab", m))
@@ -105,8 +112,9 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, seed: int | None =
                          overwrite=overwrite)
             lines.append(slab_line("slab-colmap", m))
         if nerf_minutes > 0:
-            m = run_nerf(cap, None, nerf_model, nerf_minutes, stage_dir(name, f"nerf/{nerf_model}", root), ref,
-                         seed=seed or 0, quiet=quiet, cluster=eng, overwrite=overwrite)
+            m = run_nerf(cap, None, stage_dir(name, f"nerf/{nerf_model}", root),
+                         NerfStageConfig(nerf_model, nerf_minutes, seed=seed or 0), ref, quiet=quiet, cluster=eng,
+                         overwrite=overwrite)
             mt = m["metrics"]
             lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
                          f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")

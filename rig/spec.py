@@ -666,6 +666,11 @@ def _vignetting_min_gain(a2: float, a4: float, k: IntrinsicsSpec) -> float:
     return min(1 + a2 * s + a4 * s * s for s in candidates)
 
 
+#: effects of DESIGN.md's vocabulary that nothing implements: a spec listing one is refused, never
+#: captured without it
+UNIMPLEMENTED_EFFECTS = ("motion_blur", "defocus")
+
+
 class SceneSpec(_Strict):
     name: Stem
     description: str = ""
@@ -713,6 +718,8 @@ class SceneSpec(_Strict):
         for e in self.effects or []:
             if e not in ALL_EFFECTS:
                 raise ValueError(f"effects: unknown effect '{e}' (known: {', '.join(sorted(ALL_EFFECTS))})")
+            if e in UNIMPLEMENTED_EFFECTS:
+                raise ValueError(f"effects: '{e}' is not simulated by any renderer yet; remove it from the list")
         return self
 
     @model_validator(mode="after")

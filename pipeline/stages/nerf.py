@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +64,7 @@ from ..progress import console, progress_bar
 from .capture import check_capture_folder
 from .poses import check_poses
 
-__all__ = ["run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
+__all__ = ["NerfStageConfig", "run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
            "RENDER_SHARE", "WRITE_S_PER_MPIX"]
 
 #: curve.csv's columns: training step, training seconds, wall seconds since training began, held-out PSNR (dB)
@@ -129,23 +129,37 @@ def _at_scale(view: View, k: int) -> View:
     return View(view.name, cam, area_downsample(view.rgb, k), view.full_camera, view.full_rgb)
 
 
-def run_nerf(capture_dir: Path, poses_dir: Path | None, model: str, minutes: float, out: Path,
-             reference_dir: Path | None = None, downsample: int | None = None, seed: int = 0,
-             max_steps: int | None = None,
-             resume: bool = False, quiet: bool = False, clock: str = "wall", overrides: dict | None = None,
+@dataclass(frozen=True)
+class NerfStageConfig:
+    """model: a name of :data:`recon.nerf.models.MODELS`; minutes: the budget (``clock`` "wall": the
+    whole stage's wall time, module docstring; "cpu": training time counted as process CPU time /
+    threads, for measuring on shared cores, no wall deadline); downsample: train at capture size / N
+    (None: about 160 pixels wide); seed: training seed; max_steps: stop after this many steps (None:
+    the budget decides); overrides: fields of the model's config to replace (tests use small grids)."""
+
+    model: str = "fast"
+    minutes: float = 10.0
+    downsample: int | None = None
+    seed: int = 0
+    max_steps: int | None = None
+    clock: str = "wall"
+    overrides: dict = field(default_factory=dict)
+
+
+def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfStageConfig = NerfStageConfig(),
+             reference_dir: Path | None = None, resume: bool = False, quiet: bool = False,
              cluster: ClusterConfig | LocalEngine | DaskEngine | None = None, overwrite: bool = False) -> dict:
-    """Train ``model`` on ``capture_dir`` (poses from ``poses_dir``/cameras.json when given) and
-    write ``out`` atomically, all within ``minutes`` of wall time; returns the manifest.
-    clock: "wall" (the budget bounds the whole stage, module docstring), or "cpu" (training time
-    counted as process CPU time / threads, for measuring on shared cores; no wall deadline);
-    overrides: fields of the model's config to replace (tests use small grids).
-    cluster: where the held-out renders run, one view per unit (pipeline.distributed): None
-    (default) in this process; training always runs here.
+    """Train ``config.model`` on ``capture_dir`` (poses from ``poses_dir``/cameras.json when given)
+    and write ``out`` atomically, all within ``config.minutes`` of wall time; returns the manifest.
+    resume: continue an interrupted run's checkpoint. cluster: where the held-out renders run, one
+    view per unit (pipeline.distributed): None (default) in this process; training always runs here.
 
     Bad input (missing or damaged capture, ``--poses`` of another capture, unknown model,
     ``out`` holding something else than a finished NeRF folder
     without ``overwrite``) raises BadInput before anything is written.
     """
+    model, minutes, downsample, seed = config.model, config.minutes, config.downsample, config.seed
+    max_steps, clock, overrides = config.max_steps, config.clock, config.overrides
     t_start = time.perf_counter()
     capture_dir = Path(capture_dir)
     out = Path(out)

@@ -40,13 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
+from recon.slab import (SourceView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
                         compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
 from render.image_io import write_exr, write_png, write_preview
 from render.metrics import psnr, ssim
-from render.lightfield import MODES, LightSlab, render_pinhole
-from render.lightfield import load_slabs, save_slabs, slab_file_bytes
+from render.lightfield import MODES, LightSlab, load_slabs, render_pinhole, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
@@ -55,7 +54,7 @@ from ..progress import progress_bar
 from ..renderers import prepared_scene, raster_pool
 
 __all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "score_slab_views", "score_slab_view", "slab_row",
-           "find_reference"]
+           "find_reference", "held_out_references"]
 
 Cluster = ClusterConfig | LocalEngine | DaskEngine | None
 
@@ -98,14 +97,14 @@ def _cameras(folder: Path) -> tuple[list[Camera], list[str]]:
     return read_cameras(Path(folder) / "cameras.json")
 
 
-def load_views(capture_dir: Path, cameras: list[Camera]) -> list[CapturedView]:
+def load_views(capture_dir: Path, cameras: list[Camera]) -> list[SourceView]:
     """Linear radiance and z-depth of ``cameras`` from the capture (BadInput on missing files)."""
     views = []
     for cam in cameras:
         k = cam.intrinsics
         rgb = read_image(Path(capture_dir) / "linear" / f"{cam.name}.exr", (k.height, k.width, 3))
         depth = read_image(Path(capture_dir) / "depth" / f"{cam.name}.exr", (k.height, k.width))
-        views.append(CapturedView(cam, rgb, depth))
+        views.append(SourceView(cam, rgb, depth))
     return views
 
 
@@ -122,6 +121,20 @@ def find_reference(capture_dir: Path, reference_dir: Path | None) -> tuple[Path,
     return Path(capture_dir), "capture"
 
 
+def held_out_references(capture_dir: Path, cams: list[Camera], splits: list[str], reference_dir: Path | None
+                        ) -> tuple[list[Camera], list[np.ndarray], Path, str]:
+    """(held-out cameras, their (H, W, 3) float32 reference images, the reference folder, its kind:
+    :func:`find_reference`); BadInput when the capture has no held-out camera or a reference image
+    is missing, damaged or of another size."""
+    test = [c for c, s in zip(cams, splits) if s == "test"]
+    if not test:
+        raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
+    ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
+    refs = [read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
+            for c in test]
+    return test, refs, ref_dir, ref_kind
+
+
 def _scene_file(capture_dir: Path) -> Path | None:
     man = read_json(Path(capture_dir) / MANIFEST) if (Path(capture_dir) / MANIFEST).is_file() else {}
     for p in man.get("inputs", {}):
@@ -130,7 +143,7 @@ def _scene_file(capture_dir: Path) -> Path | None:
     return None
 
 
-def _content_points(views: list[CapturedView], min_radiance: float, stride: int = 2) -> np.ndarray:
+def _content_points(views: list[SourceView], min_radiance: float, stride: int = 2) -> np.ndarray:
     pts = []
     for v in views:
         d, rgb = v.depth[::stride, ::stride], v.rgb[::stride, ::stride]
@@ -257,7 +270,7 @@ def _layout(config: SlabStageConfig, bounds: np.ndarray, train: list[Camera], up
         raise BadInput(f"slab layout: {str(exc).splitlines()[0]}") from None
 
 
-def _background(views: list[CapturedView]) -> np.ndarray:
+def _background(views: list[SourceView]) -> np.ndarray:
     """Median radiance of the pixels that saw nothing (the scene's background), black if none."""
     samples = [v.rgb[v.depth == 0][::97] for v in views]
     s = np.concatenate(samples) if samples else np.zeros((0, 3))
@@ -364,12 +377,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
     cams, splits = check_capture_folder(capture_dir, need=("linear", "depth"))
     if poses_dir is not None:
         check_poses(poses_dir, capture_dir, cams, splits)
-    test = [c for c, s in zip(cams, splits) if s == "test"]
-    if not test:
-        raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
-    ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
-    refs = [read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
-            for c in test]
+    test, refs, ref_dir, ref_kind = held_out_references(capture_dir, cams, splits, reference_dir)
     params = {"method": config.method, "mode": config.mode, "layout": asdict(config.layout),
               "direct": asdict(config.direct), "rebin": asdict(config.rebin), "min_radiance": config.min_radiance,
               "compress": config.compress, "vq": asdict(config.vq), "reference": ref_kind}

@@ -27,11 +27,11 @@ import numpy as np
 from render.camera import Camera, Intrinsics
 from render.lightfield import MODES, load_slabs, render_pinhole
 
-from ..artifacts import BadInput, Manifest, atomic_stage, write_json
-from ..io import read_image, write_csv
+from ..artifacts import Manifest, atomic_stage, write_json
+from ..io import write_csv
 from ..plot import Series, svg_plot, write_svg
 from .capture import read_cameras
-from .slab import SlabStageConfig, build_slabs, find_reference, score_slab_views
+from .slab import SlabStageConfig, build_slabs, held_out_references, score_slab_views
 
 __all__ = ["run_slab_study", "memory_plot", "DEFAULT_UV", "DEFAULT_ST"]
 
@@ -73,12 +73,7 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
     """Build and score every grid point; returns the manifest (see the module docstring)."""
     capture_dir = Path(capture_dir)
     cams, splits = read_cameras(capture_dir / "cameras.json")
-    test = [c for c, s in zip(cams, splits) if s == "test"]
-    if not test:
-        raise BadInput(f"{capture_dir / 'cameras.json'}: no held-out (test) cameras to render")
-    ref_dir, ref_kind = find_reference(capture_dir, reference_dir)
-    refs = [read_image(ref_dir / "linear" / f"{c.name}.exr", (c.intrinsics.height, c.intrinsics.width, 3))
-            for c in test]
+    test, refs, _, ref_kind = held_out_references(capture_dir, cams, splits, reference_dir)
     manifest = Manifest("slab_study", params={"uv_res": list(uv_res), "st_res": list(st_res), "method": config.method,
                                               "reference": ref_kind})
     manifest.add_input(capture_dir / "cameras.json")

@@ -293,13 +293,14 @@ def _sweep_rebin(sw: _Sweep, capture: Path, truth_dir: Path, capture_s: float, n
 def _sweep_nerf(sw: _Sweep, capture: Path, truth_dir: Path, capture_s: float, views: list[str], truth,
                 cfg: StudyConfig, seed: int) -> None:
     try:
-        from .nerf import run_nerf
+        from .nerf import NerfStageConfig, run_nerf
     except ImportError:
         return
     for model, minutes in cfg.nerf:
         out = sw.work / "nerf" / f"{model}_{minutes:g}"
         m = sw.point("nerf", model, f"{model} {minutes:g} min",
-                     lambda: run_nerf(capture, None, model, minutes, out, truth_dir, seed=seed, quiet=True),
+                     lambda: run_nerf(capture, None, out, NerfStageConfig(model, minutes, seed=seed), truth_dir,
+                                      quiet=True),
                      minutes=minutes)
         if m is None:
             continue

@@ -74,10 +74,6 @@ class VQStats:
                 "radiance_rmse": self.rmse, "train_s": round(self.train_s, 2), "encode_s": round(self.encode_s, 2)}
 
 
-def _padded(n: int) -> int:
-    return n + n % 2
-
-
 def tiles_of(radiance: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
     """(T, 48) float32 tiles of a (Nv, Nu, Nt, Ns, 3) radiance array for the uv tile rows ``rows``
     (all by default), in the order of :class:`render.lightfield.VQRadiance` codes (row-major over

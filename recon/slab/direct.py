@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera
-from render.lightfield import LightSlab, SlabGeometry, sheared_camera
-from render.lightfield import create_slab_arrays, write_slab_index
+from render.lightfield import LightSlab, SlabGeometry, create_slab_arrays, sheared_camera, write_slab_index
 
 __all__ = ["DirectConfig", "RenderFn", "RowsFn", "uv_subsamples", "renders_per_uv", "acquire_row", "acquire_direct"]
 

@@ -109,8 +109,8 @@ def _counts(size: tuple[float, float], res: int) -> tuple[int, int]:
     return max(2, int(round(res * w / h))), res
 
 
-def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_res: int = 8,
-              st_res: int = 384, margin: float = 0.04, names: Sequence[str] | None = None) -> list[SlabGeometry]:
+def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_res: int = LayoutConfig.uv_res,
+              st_res: int = LayoutConfig.st_res, margin: float = LayoutConfig.margin, names: Sequence[str] | None = None) -> list[SlabGeometry]:
     """Slab geometries for viewing ``normals`` (K, 3) around content ``bounds`` (2, 3) seen from
     camera centres ``eyes`` (M, 3). A slab no camera looks through is left out."""
     normals = _unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3))

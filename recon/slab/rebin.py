@@ -26,15 +26,15 @@ from pathlib import Path
 import numpy as np
 
 from render.camera import Camera
-from render.lightfield import LightSlab, SlabGeometry
-from render.lightfield import create_slab_arrays, write_slab_index
+from render.lightfield import LightSlab, SlabGeometry, create_slab_arrays, write_slab_index
 
-__all__ = ["CapturedView", "RebinConfig", "RebinStats", "point_cloud", "splat_depth", "rebin_slabs"]
+__all__ = ["SourceView", "RebinConfig", "RebinStats", "point_cloud", "splat_depth", "rebin_slabs"]
 
 
 @dataclass
-class CapturedView:
-    """A calibrated capture: ``rgb`` (H, W, 3) float32 linear, ``depth`` (H, W) float32 z-depth
+class SourceView:
+    """A calibrated view the rebinning draws rays from (a capture's train view, not
+    :class:`rig.capture.CapturedView`, which recon never sees): ``rgb`` (H, W, 3) float32 linear, ``depth`` (H, W) float32 z-depth
     (0 = nothing), camera-to-world OpenCV pose in ``camera``."""
 
     camera: Camera
@@ -86,7 +86,7 @@ class RebinStats:
                              for k in self.rays}}
 
 
-def _check_views(views: Sequence[CapturedView]) -> None:
+def _check_views(views: Sequence[SourceView]) -> None:
     if not views:
         raise ValueError("rebinning needs at least one captured view")
     shapes = {(v.camera.intrinsics.height, v.camera.intrinsics.width) for v in views}
@@ -110,7 +110,7 @@ def _edge_free(depth: np.ndarray, jump: float) -> np.ndarray:
     return ok
 
 
-def point_cloud(views: Sequence[CapturedView], voxel: float, edge_jump: float = 0.02) -> np.ndarray:
+def point_cloud(views: Sequence[SourceView], voxel: float, edge_jump: float = 0.02) -> np.ndarray:
     """(P, 3) float64 world surface points from the views' depth maps, one per occupied voxel."""
     pts = []
     for v in views:
@@ -181,7 +181,7 @@ def _bilinear(images: np.ndarray, which: np.ndarray, x: np.ndarray, y: np.ndarra
 class _Views:
     """The captures stacked for vectorized projection and sampling."""
 
-    def __init__(self, views: Sequence[CapturedView]):
+    def __init__(self, views: Sequence[SourceView]):
         self.rgb = np.stack([np.asarray(v.rgb, np.float32) for v in views])
         self.depth = np.stack([np.asarray(v.depth, np.float32) for v in views])
         self.centres = np.stack([v.camera.center for v in views])
@@ -242,7 +242,7 @@ def _blend_rays(views: _Views, P: np.ndarray, r: np.ndarray, cfg: RebinConfig, t
     return out, filled
 
 
-def rebin_slabs(geometries: Sequence[SlabGeometry], views: Sequence[CapturedView], folder,
+def rebin_slabs(geometries: Sequence[SlabGeometry], views: Sequence[SourceView], folder,
                 config: RebinConfig = RebinConfig(), background=(0.0, 0.0, 0.0),
                 progress: Callable[[int], None] | None = None) -> tuple[list[LightSlab], RebinStats]:
     """Fill slabs from captures into memory-mapped arrays in ``folder`` (and its slabs.json).

@@ -38,14 +38,26 @@ def _missing_mesh(s):
     s["objects"][0]["material"] = s["objects"][0].pop("face_materials")[1]
 
 
+def _motion_blur(s):
+    s["effects"] = ["direct", "motion_blur"]
+
+
+def _defocus(s):
+    s["effects"] = ["defocus"]
+
+
 @pytest.mark.parametrize("mutate, field", [
     (_negative_width, "cameras.intrinsics.width"),
     (_unknown_field, "objects.0.colour"),
     (_wrong_type, "cameras.intrinsics.height"),
     (_missing_mesh, "bunny.obj"),
-], ids=["negative_resolution", "unknown_field", "wrong_type", "missing_mesh_file"])
+    (_motion_blur, "effects: 'motion_blur' is not simulated"),
+    (_defocus, "effects: 'defocus' is not simulated"),
+], ids=["negative_resolution", "unknown_field", "wrong_type", "missing_mesh_file", "motion_blur_unimplemented",
+        "defocus_unimplemented"])
 def test_malformed_scene_exits_2_with_one_line_and_writes_nothing(tmp_path, mutate, field):
-    """The four malformed scenes of the foundation issue, through the real CLI process."""
+    """The four malformed scenes of the foundation issue, and effects nothing implements (accepted
+    once, silently not simulated), through the real CLI process."""
     bad = copy.deepcopy(TINY_SCENE)
     mutate(bad)
     scene = write_scene(tmp_path / "scenes", bad)

@@ -68,3 +68,14 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     ran = {s for s in ("capture", "reference", "poses", "slab", "nerf", "validate")
            if f"Running stage '{s}'" in third.stdout}
     assert ran == {"slab", "validate"}, third.stdout
+
+
+def test_params_yaml_holds_run_defaults_and_every_dependency_exists():
+    """params.yaml's values are `lumigraph run`'s (pipeline.params.RunParams, stated once), and every
+    code dependency dvc.yaml names exists in the tree (a moved module must move its dvc dep too)."""
+    from pipeline.params import RunParams
+
+    assert yaml.safe_load((REPO / "params.yaml").read_text()) == RunParams().as_params_yaml()
+    stages = yaml.safe_load((REPO / "dvc.yaml").read_text())["stages"]
+    deps = [d for s in stages.values() for d in s.get("deps", []) if "${" not in d]
+    assert deps and all((REPO / d).exists() for d in deps), [d for d in deps if not (REPO / d).exists()]

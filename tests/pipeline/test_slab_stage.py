@@ -13,8 +13,7 @@ from pipeline.stages.slab import SlabStageConfig, run_slab
 from recon.slab import LayoutConfig
 from render.image_io import read_exr
 from render.metrics import psnr
-from render.lightfield import MODES
-from render.lightfield import load_slabs
+from render.lightfield import MODES, load_slabs
 
 from .conftest import TINY_SCENE, write_scene
 

@@ -77,7 +77,7 @@ _BUILT: dict[str, Path] = {}
 def build_tiny_pipeline(root: Path, seed: int = 0) -> Path:
     """Run every stage of the tiny scene under ``root``; returns ``root/tiny`` (artifacts/<scene>)."""
     from pipeline.stages.capture import run_capture
-    from pipeline.stages.nerf import run_nerf
+    from pipeline.stages.nerf import NerfStageConfig, run_nerf
     from pipeline.stages.poses import run_poses
     from pipeline.stages.reference import run_reference
     from pipeline.stages.slab import SlabStageConfig, run_slab
@@ -99,8 +99,9 @@ def build_tiny_pipeline(root: Path, seed: int = 0) -> Path:
     run_slab(art / "capture", art / "poses" / "gt", art / "slab-rebin",
              SlabStageConfig(method="rebin", layout=small, seed=seed), quiet=True)
     if WITH_NERF:
-        run_nerf(art / "capture", None, "fast", NERF_MINUTES, art / "nerf" / "fast", art / "reference",
-                 seed=seed, max_steps=NERF_STEPS, quiet=True, overrides=dict(FAST_SMALL))
+        run_nerf(art / "capture", None, art / "nerf" / "fast",
+                 NerfStageConfig("fast", NERF_MINUTES, seed=seed, max_steps=NERF_STEPS, overrides=dict(FAST_SMALL)),
+                 art / "reference", quiet=True)
     run_validate(art, quiet=True)
     return art
 

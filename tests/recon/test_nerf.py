@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from pipeline.artifacts import BadInput
-from pipeline.stages.nerf import run_nerf
+from pipeline.stages.nerf import NerfStageConfig, run_nerf
 from recon.nerf.data import NerfInputError, area_downsample, load_data, scene_box
 from recon.nerf.encoding import PositionalEncoding, sh_encoding
 from recon.nerf.models import MODELS, FastConfig, FastNeRF, make_model
@@ -268,8 +268,8 @@ def test_training_rejects_unknown_model():
 @pytest.fixture(scope="session")
 def stage_out(tiny_capture, tmp_path_factory):
     out = tmp_path_factory.mktemp("stage") / "nerf" / "fast"
-    run_nerf(tiny_capture, None, "fast", 30.0, out, downsample=1, max_steps=40, quiet=True,
-             overrides=dict(FAST_SMALL))
+    run_nerf(tiny_capture, None, out,
+             NerfStageConfig("fast", 30.0, downsample=1, max_steps=40, overrides=dict(FAST_SMALL)), quiet=True)
     return out
 
 
@@ -293,11 +293,11 @@ def test_stage_writes_the_nerf_folder(stage_out, tiny_capture):
 
 def test_stage_bad_input_exits_cleanly(tiny_capture, tmp_path):
     with pytest.raises(BadInput, match="nowhere: no such folder"):
-        run_nerf(tmp_path / "nowhere", None, "fast", 1.0, tmp_path / "out", quiet=True)
+        run_nerf(tmp_path / "nowhere", None, tmp_path / "out", NerfStageConfig("fast", 1.0), quiet=True)
     with pytest.raises(BadInput, match="unknown NeRF model"):
-        run_nerf(tiny_capture, None, "nope", 1.0, tmp_path / "out", quiet=True)
+        run_nerf(tiny_capture, None, tmp_path / "out", NerfStageConfig("nope", 1.0), quiet=True)
     with pytest.raises(BadInput, match="--poses"):
-        run_nerf(tiny_capture, tmp_path / "missing", "fast", 1.0, tmp_path / "out", quiet=True)
+        run_nerf(tiny_capture, tmp_path / "missing", tmp_path / "out", NerfStageConfig("fast", 1.0), quiet=True)
     assert not (tmp_path / "out").exists()
 
 

@@ -7,12 +7,11 @@ z-depth for any pinhole camera, so slabs built from it have closed-form samples.
 import numpy as np
 import pytest
 
-from recon.slab import (CapturedView, DirectConfig, LayoutConfig, RebinConfig, acquire_direct, box_normals,
+from recon.slab import (SourceView, DirectConfig, LayoutConfig, RebinConfig, acquire_direct, box_normals,
                         content_bounds, fit_slabs, rebin_slabs, ring_normals, slab_layout, uv_subsamples)
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
-from render.lightfield import render_rays, select_slabs, slab_coordinates
-from render.lightfield import load_slabs
+from render.lightfield import load_slabs, render_rays, select_slabs, slab_coordinates
 
 HALF = 0.2
 UP = np.array([0.0, 0.0, 1.0])
@@ -190,7 +189,7 @@ def captures():
             Rz = np.array([[np.cos(off), -np.sin(off), 0], [np.sin(off), np.cos(off), 0], [0, 0, 1]])
             cam = Camera(k, look_at(Rz @ e, [0, 0, 0], UP), f"v{el:.0f}_{n}")
             rgb, z = r(cam)
-            views.append(CapturedView(cam, rgb, z))
+            views.append(SourceView(cam, rgb, z))
     return views
 
 
@@ -221,10 +220,10 @@ def test_rebinning_fills_surface_rays_with_the_true_radiance(layout, captures, t
 
 
 def test_rebinning_bad_input(layout, captures, tmp_path):
-    bad = [CapturedView(captures[0].camera, captures[0].rgb[:10], captures[0].depth)]
+    bad = [SourceView(captures[0].camera, captures[0].rgb[:10], captures[0].depth)]
     with pytest.raises(ValueError, match="do not match"):
         rebin_slabs(layout[:1], bad, tmp_path)
-    empty = [CapturedView(c.camera, c.rgb, np.zeros_like(c.depth)) for c in captures[:2]]
+    empty = [SourceView(c.camera, c.rgb, np.zeros_like(c.depth)) for c in captures[:2]]
     with pytest.raises(ValueError, match="no captured view has depth"):
         rebin_slabs(layout[:1], empty, tmp_path / "e")
     with pytest.raises(ValueError):
