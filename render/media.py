@@ -12,7 +12,7 @@ index-matched (they change the medium, never the direction). Media must not over
 and the rays' medium is the one whose bounds contain the point (outside all: vacuum). A medium's
 coefficients are constant, or scaled by a voxel grid ``density[ix, iy, iz]`` (X, Y, Z) spanning
 the bounds' axis-aligned box (cell (i, j, k) covers lo + (i, j, k) (hi - lo) / (X, Y, Z) to the
-next corner; nearest lookup, as :class:`render.volume.VoxelField`); emission radiance Le is
+next corner; nearest lookup, as :class:`recon.nerf.volume.VoxelField`); emission radiance Le is
 constant (the source term is sigma_a(x) Le).
 
 Delta tracking (Woodcock; pbrt-v4's SampleT_maj): tentative collisions at rate mu (the

@@ -1,4 +1,4 @@
-"""Light-slab geometry, lookup and interpolation (render/slab.py, render/slab_io.py).
+"""Light-slab geometry, lookup and interpolation (render/lightfield/).
 
 Analytic light fields: a Lambertian plane parallel to the slab planes at distance ``zeta`` from
 the uv plane, textured by a known function f(x, y). The radiance of the line through uv point U
@@ -322,7 +322,7 @@ def test_slab_arrays_filled_in_place_and_nonfinite_refused(tmp_path):
 
 
 def test_compiled_camera_path_matches_general_ray_lookup():
-    """render_pinhole's compiled per-pixel kernels (render/slab_kernels.py) agree with the numpy
+    """render_pinhole's compiled per-pixel kernels (render/lightfield/kernels.py) agree with the numpy
     per-ray path (slab_coordinates + lookup, float64) in every mode, on two slabs seen by a
     camera whose view straddles the quads' edges and both slabs (so selection matters)."""
     g = make_geometry((8, 8, 32, 32))
