@@ -55,7 +55,7 @@ from recon.nerf.data import NerfInputError, View, area_downsample, load_data
 from recon.nerf.models import MODELS, make_model
 from recon.nerf.train import Deadline, TrainConfig, evaluate_view, train
 from render.camera import Camera
-from render.image_io import write_exr, write_preview
+from render.image_io import write_depth_exr, write_exr, write_preview
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, write_json
 from ..distributed import ClusterConfig, DaskEngine, LocalEngine, engine, map_units
@@ -276,7 +276,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         for name, r in renders.items():
             write_exr(tmp / "renders" / f"{name}.exr", r["rgb"])
             write_preview(tmp / "renders" / f"{name}.png", r["rgb"])
-            write_exr(tmp / "depth" / f"{name}.exr", r["depth"])
+            write_depth_exr(tmp / "depth" / f"{name}.exr", r["depth"])
         psnr_mean = float(np.mean([r["psnr"] for r in rows]))
         curve = list(result.curve)
         if deadline is not None and (not curve or curve[-1]["step"] != result.steps):

@@ -51,7 +51,7 @@ from ..film import Film, RenderResult
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
 from .path_kernels import (F_DELTA, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig, PinholeCamera,
-                           accumulate, add_unoccluded, camera_rays, kernel_scene, last_bounce_queue, shade_bounce)
+                           accumulate, add_unoccluded, sample_camera_rays, kernel_scene, last_bounce_queue, shade_bounce)
 from .prepared import PreparedScene
 from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent
 
@@ -154,7 +154,7 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     jit = np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
-    camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
+    sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
                 cur[5], cur[6], jit)
     if not pinhole:
         o, d = cam.pixel_rays(jit)

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["KernelScene", "kernel_scene", "camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
+__all__ = ["KernelScene", "kernel_scene", "sample_camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
            "accumulate", "uniform_dims", "PathConfig", "PinholeCamera"]
 
 LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
@@ -161,7 +161,7 @@ class PinholeCamera(NamedTuple):
 
 
 @njit(**_JIT)
-def camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit):
+def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit):
     """Camera samples of flat indices [start, stop): flat = sample * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import os
 import subprocess
 import sys
 from dataclasses import fields
@@ -79,17 +80,32 @@ def test_render_refuses_unused_options_before_rendering():
 
 def test_kernel_cache_loads_in_a_second_process():
     """numba's on-disk cache of the compiled kernels (cache=True) still works in their new home:
-    a second process loads shade_bounce and camera_rays from it instead of compiling them."""
+    a second process loads shade_bounce and sample_camera_rays from it instead of compiling them."""
     probe = (
         "import sys; sys.path.insert(0, 'tests/render')\n"
         "from cornell_box import cornell_camera, cornell_scene\n"
         "from render.integrators import RenderSettings, render, path_kernels as pk\n"
         "render(cornell_scene(), cornell_camera(4, 4), RenderSettings(integrator='path', spp=1, threads=1))\n"
-        "print(sum(sum(getattr(pk, f).stats.cache_hits.values()) for f in ('shade_bounce', 'camera_rays')),"
-        " sum(sum(getattr(pk, f).stats.cache_misses.values()) for f in ('shade_bounce', 'camera_rays')))\n")
+        "print(sum(sum(getattr(pk, f).stats.cache_hits.values()) for f in ('shade_bounce', 'sample_camera_rays')),"
+        " sum(sum(getattr(pk, f).stats.cache_misses.values()) for f in ('shade_bounce', 'sample_camera_rays')))\n")
     root = Path(integrators.__file__).resolve().parents[2]
     runs = [subprocess.run([sys.executable, "-c", probe], cwd=root, capture_output=True, text=True, timeout=600)
             for _ in range(2)]
     assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
     hits, misses = map(int, runs[1].stdout.split())
     assert (hits, misses) == (2, 0)
+
+
+def test_reference_help_names_every_registered_integrator():
+    """The CLI's --integrator help is written out by hand (importing the registry at start-up would
+    load the compiled kernels for every verb): it must name exactly auto and the registry's keys."""
+    import re
+
+    from render.integrators import INTEGRATORS
+    out = subprocess.run([sys.executable, "-m", "pipeline", "reference", "--help"], capture_output=True, text=True,
+                         env={**os.environ, "COLUMNS": "400"}, timeout=120)
+    assert out.returncode == 0, out.stderr
+    text = " ".join(out.stdout.split())
+    listed = re.search(r"auto \(from the scene's effects\) ((?:\| \w+ ?)+)", text)
+    assert listed, text
+    assert set(re.findall(r"\| (\w+)", listed.group(1))) == set(INTEGRATORS)
