@@ -76,14 +76,14 @@ def _cpu_now(client) -> float:
 def _time_runs(rig, scene_file, root: Path, cluster, label: str, repeats: int = REPEATS,
                client=None) -> tuple[list[float], list[float]]:
     """Wall and CPU seconds (all processes involved) of ``repeats`` runs."""
-    from pipeline.stages.reference import run_reference
+    from pipeline.stages.reference import ReferenceConfig, run_reference
 
     times, cpu = [], []
     for i in range(repeats):
         c0 = _cpu_now(client)
         t0 = time.perf_counter()
-        run_reference(rig, scene_file, root / f"{label}-{i}", spp=SPP, size=SIZE, views=VIEWS, quiet=True,
-                      cluster=cluster)
+        run_reference(rig, scene_file, root / f"{label}-{i}", ReferenceConfig(spp=SPP, size=SIZE, views=VIEWS),
+                      quiet=True, cluster=cluster)
         times.append(time.perf_counter() - t0)
         cpu.append(_cpu_now(client) - c0)
     return times, cpu

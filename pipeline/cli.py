@@ -92,12 +92,12 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               quiet: bool = QUIET,
               overwrite: bool = OVERWRITE):
     """Path-traced reference renders of a scene's views, with per-pixel variance images."""
-    from .stages.reference import run_reference
+    from .stages.reference import ReferenceConfig, run_reference
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "reference", root)
-    m = run_reference(rig, path, out, spp, size, views, integrator, seed, max_depth, quiet,
-                      _cluster(scheduler, workers), overwrite=overwrite)
+    config = ReferenceConfig(spp=spp, size=size, views=views, integrator=integrator, seed=seed, max_depth=max_depth)
+    m = run_reference(rig, path, out, config, quiet, _cluster(scheduler, workers), overwrite=overwrite)
     typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
 

@@ -63,7 +63,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
     from .stages.capture import run_capture
     from .stages.nerf import NerfStageConfig, run_nerf
     from .stages.poses import PosesConfig, run_poses
-    from .stages.reference import run_reference
+    from .stages.reference import ReferenceConfig, run_reference
     from .stages.slab import SlabStageConfig, run_slab
     from .stages.validate import run_validate
 
@@ -80,7 +80,8 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
             lines.append("no held-out views: the model stages need a 'test' split; stopping after capture")
             return lines
         ref = stage_dir(name, "reference", root)
-        m = run_reference(rig, scene_file, ref, spp=spp, seed=seed or 0, quiet=quiet, cluster=eng, overwrite=overwrite)
+        m = run_reference(rig, scene_file, ref, ReferenceConfig(spp=spp, seed=seed or 0),
+                          quiet=quiet, cluster=eng, overwrite=overwrite)
         lines.append(f"reference  {m['metrics']['views']} views, {m['params']['integrator']} {spp} spp, "
                      f"{m['wall_time_s']:.1f} s")
         methods = ["gt", "colmap"] + (["charuco"] if rig.targets else [])

@@ -27,7 +27,7 @@ per worker against MemAvailable).
 from __future__ import annotations
 
 import os
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +43,8 @@ from ..artifacts import BadInput, Manifest, atomic_stage
 from ..distributed import ClusterConfig, engine, worker_cache
 from ..progress import progress_bar
 
-__all__ = ["run_reference", "select_views", "resize_camera", "render_batch", "fold_batches", "finish_view",
-           "check_fits", "available_memory", "SAMPLE_BATCH", "MAX_SPP", "BYTES_PER_PIXEL"]
+__all__ = ["ReferenceConfig", "run_reference", "select_views", "resize_camera", "render_batch", "fold_batches",
+           "finish_view", "check_fits", "available_memory", "SAMPLE_BATCH", "MAX_SPP", "BYTES_PER_PIXEL"]
 
 #: samples per pixel rendered per unit of work; fixed, so results never depend on the split
 SAMPLE_BATCH = 8
@@ -162,17 +162,36 @@ def finish_view(acc: tuple[Film, dict]) -> tuple[np.ndarray, np.ndarray, dict]:
     return film.mean(), film.variance(), stats
 
 
-def run_reference(rig: RigScene, scene_file: Path, out: Path, spp: int = 64, size: tuple[int, int] | None = None,
-                  views: str = "auto", integrator: str = "auto", seed: int = 0, max_depth: int = 8,
+@dataclass(frozen=True)
+class ReferenceConfig:
+    """What the ``reference`` stage renders (the ``lumigraph reference`` options of the same names)."""
+
+    #: samples per pixel, in [1, MAX_SPP]
+    spp: int = 64
+    #: render size (W, H); None: each view's own
+    size: tuple[int, int] | None = None
+    #: auto | test | all | scene (:func:`select_views`)
+    views: str = "auto"
+    #: auto (chosen from the scene's effects) or a name of render.integrators.INTEGRATORS
+    integrator: str = "auto"
+    #: render seed
+    seed: int = 0
+    #: maximum bounces
+    max_depth: int = 8
+
+
+def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceConfig = ReferenceConfig(),
                   quiet: bool = False, cluster: ClusterConfig | None = None, overwrite: bool = False) -> dict:
     """Render the chosen views with the path tracer into ``out`` atomically; returns the manifest.
 
-    views: auto | test | all | scene (:func:`select_views`). spp is bounded by MAX_SPP and each
-    view's memory by :func:`check_fits`, both before anything is allocated.
+    spp is bounded by MAX_SPP and each view's memory by :func:`check_fits`, both before anything
+    is allocated.
 
     cluster: where the batches run (pipeline.distributed): None (default) in this process; a
     :class:`ClusterConfig` for a local or existing Dask cluster. The output files are the same
     bytes either way."""
+    spp, size, views, integrator, seed, max_depth = (config.spp, config.size, config.views, config.integrator,
+                                                     config.seed, config.max_depth)
     if not 1 <= spp <= MAX_SPP:
         raise BadInput(f"--spp must lie in [1, {MAX_SPP}], got {spp}")
     if size is not None and (size[0] < 1 or size[1] < 1):

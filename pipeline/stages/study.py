@@ -200,17 +200,18 @@ class _Sweep:
 
 
 def _sweep_reference(sw: _Sweep, rig, scene_file: Path, views: list[str], truth, cfg: StudyConfig, seed: int) -> None:
-    from .reference import run_reference
+    from .reference import ReferenceConfig, run_reference
 
     # untimed warm-up: the first render in a process pays one-off costs (compilation, caches)
-    run_reference(rig, scene_file, sw.work / "pt" / "warmup", spp=1, seed=seed, quiet=True)
+    run_reference(rig, scene_file, sw.work / "pt" / "warmup", ReferenceConfig(spp=1, seed=seed), quiet=True)
     shutil.rmtree(sw.work / "pt" / "warmup", ignore_errors=True)
     for integ in cfg.integrators:
         for spp in cfg.spp:
             out = sw.work / "pt" / f"{integ}_{spp}"
 
             def go():
-                return run_reference(rig, scene_file, out, spp=spp, integrator=integ, seed=seed, quiet=True)
+                return run_reference(rig, scene_file, out, ReferenceConfig(spp=spp, integrator=integ, seed=seed),
+                                     quiet=True)
 
             m = sw.point("reference", integ, f"{integ} {spp} spp", go, spp=spp)
             if m is None:
@@ -349,7 +350,7 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
     from rig.build import load_scene
 
     from .capture import run_capture
-    from .reference import run_reference
+    from .reference import ReferenceConfig, run_reference
 
     if config is None:
         if profile not in PROFILES:
@@ -379,8 +380,9 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
             capture_s = cap["wall_time_s"]
             truth_dir = art / "reference"
             tm = sw.point("reference", "truth", "study reference",
-                          lambda: run_reference(rig, scene_file, truth_dir, spp=config.truth_spp,
-                                                seed=seed + _TRUTH_SEED_OFFSET, quiet=True))
+                          lambda: run_reference(rig, scene_file, truth_dir,
+                                                ReferenceConfig(spp=config.truth_spp, seed=seed + _TRUTH_SEED_OFFSET),
+                                                quiet=True))
             views = [c.name for c in rig.cameras.get("test", [])]
             truth = {v: (read_image(truth_dir / "linear" / f"{v}.exr"), read_image(truth_dir / "variance" / f"{v}.exr"))
                      for v in views}

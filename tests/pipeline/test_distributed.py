@@ -18,7 +18,7 @@ import pytest
 from pipeline.artifacts import BadInput, atomic_stage, read_manifest
 from pipeline.cli import main
 from pipeline.distributed import ClusterConfig, DaskEngine, LocalEngine, engine
-from pipeline.stages.reference import run_reference
+from pipeline.stages.reference import ReferenceConfig, run_reference
 
 from .conftest import TINY_SCENE, write_scene
 
@@ -113,7 +113,7 @@ def tiny(tmp_path_factory):
 def undisturbed(tiny):
     """Output hashes of the single-process run (no Dask)."""
     rig, path, root = tiny
-    m = run_reference(rig, path, root / "single", spp=SPP, views=VIEWS, quiet=True)
+    m = run_reference(rig, path, root / "single", ReferenceConfig(spp=SPP, views=VIEWS), quiet=True)
     assert m["metrics"]["engine"] == "in process" and len(m["outputs"]) == 3 * N_VIEWS + 1
     return m["outputs"]
 
@@ -130,7 +130,8 @@ def test_same_bytes_for_1_2_3_workers(tiny, undisturbed, cluster, workers):
     rig, path, root = tiny
     cluster.ensure(workers)
     out = root / f"w{workers}"
-    m = run_reference(rig, path, out, spp=SPP, views=VIEWS, quiet=True, cluster=ClusterConfig(cluster.address))
+    m = run_reference(rig, path, out, ReferenceConfig(spp=SPP, views=VIEWS),
+                      quiet=True, cluster=ClusterConfig(cluster.address))
     assert m["metrics"]["workers"] == workers and m["metrics"]["engine"] == "dask cluster"
     assert m["outputs"] == undisturbed
 
@@ -148,8 +149,8 @@ def test_worker_killed_mid_run_gives_the_same_image(tiny, undisturbed, cluster):
 
     def run():
         try:
-            box["m"] = run_reference(rig, path, out, spp=SPP, views=VIEWS, quiet=True,
-                                     cluster=ClusterConfig(cluster.address))
+            box["m"] = run_reference(rig, path, out, ReferenceConfig(spp=SPP, views=VIEWS),
+                                     quiet=True, cluster=ClusterConfig(cluster.address))
         except BaseException as exc:  # surfaced below
             box["error"] = exc
 
@@ -254,13 +255,15 @@ def test_unreachable_scheduler_is_bad_input(tiny, capsys):
     rig, path, root = tiny
     out = root / "unreachable"
     with pytest.raises(BadInput, match="--scheduler"):
-        run_reference(rig, path, out, spp=8, views="test", quiet=True, cluster=ClusterConfig("tcp://127.0.0.1:9", connect_timeout_s=2))
+        run_reference(rig, path, out, ReferenceConfig(spp=8, views="test"),
+                      quiet=True, cluster=ClusterConfig("tcp://127.0.0.1:9", connect_timeout_s=2))
     assert not out.exists()
 
 
 def test_workers_0_is_in_process_and_negative_is_bad_input(tiny, undisturbed, capsys):
     rig, path, root = tiny
-    m = run_reference(rig, path, root / "w0", spp=SPP, views=VIEWS, quiet=True, cluster=ClusterConfig(workers=0))
+    m = run_reference(rig, path, root / "w0", ReferenceConfig(spp=SPP, views=VIEWS),
+                      quiet=True, cluster=ClusterConfig(workers=0))
     assert m["metrics"]["engine"] == "in process" and m["outputs"] == undisturbed
     assert main(["reference", str(path), "--workers", "-1", "--out", str(root / "neg"), "--quiet"]) == 2
     assert "--workers" in capsys.readouterr().err
@@ -275,7 +278,7 @@ def test_no_worker_left_stops_the_stage_instead_of_hanging(tiny, cluster):
     out = root / "no-workers"
     t0 = time.monotonic()
     with pytest.raises(RuntimeError, match="no worker"):
-        run_reference(rig, path, out, spp=8, views="test", quiet=True,
-                      cluster=ClusterConfig(cluster.address, no_workers_timeout_s=2, poll_s=0.5))
+        run_reference(rig, path, out, ReferenceConfig(spp=8, views="test"),
+                      quiet=True, cluster=ClusterConfig(cluster.address, no_workers_timeout_s=2, poll_s=0.5))
     assert time.monotonic() - t0 < 30
     assert not out.exists() and not list(root.glob(".no-workers.partial-*"))

@@ -79,7 +79,7 @@ def build_tiny_pipeline(root: Path, seed: int = 0) -> Path:
     from pipeline.stages.capture import run_capture
     from pipeline.stages.nerf import NerfStageConfig, run_nerf
     from pipeline.stages.poses import run_poses
-    from pipeline.stages.reference import run_reference
+    from pipeline.stages.reference import ReferenceConfig, run_reference
     from pipeline.stages.slab import SlabStageConfig, run_slab
     from recon.slab import LayoutConfig
     from rig.build import load_scene
@@ -88,7 +88,7 @@ def build_tiny_pipeline(root: Path, seed: int = 0) -> Path:
     rig = load_scene(scene)
     art = root / "tiny"
     run_capture(rig, scene, art / "capture", seed, quiet=True)
-    run_reference(rig, scene, art / "reference", spp=REFERENCE_SPP, seed=seed, quiet=True)
+    run_reference(rig, scene, art / "reference", ReferenceConfig(spp=REFERENCE_SPP, seed=seed), quiet=True)
     run_poses(art / "capture", "gt", art / "poses" / "gt", quiet=True)
     try:  # 128x96 is too small for the board detector: a failed estimate the report must show
         run_poses(art / "capture", "charuco", art / "poses" / "charuco", quiet=True)
