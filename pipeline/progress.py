@@ -4,7 +4,9 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn,
+                           TimeRemainingColumn)
+from rich.text import Text
 
 __all__ = ["progress_bar", "console"]
 
@@ -22,6 +24,14 @@ class _Silent:
         pass
 
 
+class _InfoColumn(ProgressColumn):
+    """A task's optional ``info`` field: a task added without one shows nothing (rich's
+    ``_InfoColumn()`` raises KeyError while drawing, after the work is done)."""
+
+    def render(self, task) -> Text:
+        return Text(str(task.fields.get("info", "")))
+
+
 @contextmanager
 def progress_bar(quiet: bool = False):
     """Yield an object with rich's ``add_task`` / ``advance`` / ``update`` API."""
@@ -29,6 +39,6 @@ def progress_bar(quiet: bool = False):
         yield _Silent()
         return
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[info]}"), TimeElapsedColumn(), TimeRemainingColumn(),
+                  _InfoColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
                   console=console, transient=False) as p:
         yield p

@@ -269,3 +269,17 @@ def test_version_prints_the_package_version():
 
     proc = subprocess.run([sys.executable, "-m", "pipeline", "--version"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == f"lumigraph {version('lumigraph')}", proc
+
+
+def test_progress_bar_draws_tasks_with_and_without_info():
+    """Every stage's bar is drawn by pipeline.progress: a task added without the optional ``info``
+    field (the export stage's) must draw, not raise KeyError when the bar refreshes after the
+    work is done (the export verb without --quiet once exited 1 that way)."""
+    from pipeline.progress import progress_bar
+
+    with progress_bar(quiet=False) as bar:
+        a = bar.add_task("with info", total=2, info="2 views")
+        b = bar.add_task("without info", total=2)
+        bar.advance(a)
+        bar.advance(b, 2)
+        bar.refresh()
