@@ -220,14 +220,24 @@ def report(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts f
 
 
 @app.command()
-def study(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML"),
+def study(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML, or a "
+                                       "lecture study: uniqueness | caching | bias"),
           profile: str = typer.Option("quick", help="quick | full"),
           out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/study)"),
           seed: int = typer.Option(0, help="seed"),
           root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
           quiet: bool = QUIET,
           overwrite: bool = OVERWRITE):
-    """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time."""
+    """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time.
+
+    With a lecture study's name instead of a scene, run that study into <root>/lecture/<name>."""
+    from .stages.lecture import LECTURE_STUDIES, lecture_dir, run_lecture_study
+
+    if scene in LECTURE_STUDIES:
+        out = out or lecture_dir(scene, root)
+        m = run_lecture_study(scene, out, profile=profile, seed=seed, quiet=quiet, overwrite=overwrite)
+        typer.echo(f"study {scene}: {m['wall_time_s']:.0f} s -> {out}")
+        return
     from .stages.study import run_study
 
     from rig.spec import load_spec
