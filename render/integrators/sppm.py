@@ -75,7 +75,7 @@ from ..sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings
 
-__all__ = ["Options", "SPPMResult", "render_sppm", "render_result", "ALPHA", "GROUPS"]
+__all__ = ["Options", "SPPMResult", "render_sppm", "render_result", "photon_pass_at", "direct_at", "ALPHA", "GROUPS"]
 
 #: Hachisuka and Jensen's (and pbrt's) fraction of new photons kept per pass
 ALPHA = 2.0 / 3.0
@@ -357,6 +357,24 @@ def _gather(vp: dict, radius: np.ndarray, ph: dict, max_depth: int) -> tuple[np.
                 phi[:, ch] += np.bincount(v, weights=contrib[:, ch], minlength=nv)
             cnt += np.bincount(v, minlength=nv)
     return phi, cnt
+
+
+# ---------------------------------------------------------------- passes at given points
+def photon_pass_at(ps, points: dict, radius: np.ndarray, photons_per_pass: int, rng: np.random.Generator,
+                   max_depth: int, caustics: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+    """One photon pass gathered at caller-given visible points (render.sensors' photon-mapped
+    irradiance reuses this module's passes). points: dict of (V,) pix (0..V-1), depth, (V, 3) p,
+    n (gather side), w (weight per photon flux; 1 gives irradiance). radius: (V,) gather radii.
+    Returns (Phi (V, 3) weighted flux within the radii, M (V,) photon count, rays traced)."""
+    photons, rays = _photon_pass(ps, int(photons_per_pass), rng, int(max_depth), caustics)
+    phi, count = _gather(points, radius, photons, int(max_depth))
+    return phi, count, rays
+
+
+def direct_at(ps, points: dict, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """Next-event estimate (one light sample, one shadow ray) at caller-given points (keys of
+    :func:`photon_pass_at` plus (V, 3) ng): (V, 3) w x Li cos / pdf, shadow rays traced."""
+    return _direct_at_visible_points(ps, points, rng)
 
 
 # ---------------------------------------------------------------- the integrator
