@@ -30,7 +30,7 @@ import kornia.metrics
 from .color import linear_to_srgb
 
 __all__ = ["psnr", "ssim", "rmse", "flip", "mse_to_psnr", "PSNR_MAX_DB", "MSE_FLOOR", "to_display", "flip_map",
-           "score_images", "black_image_scores", "SCORE_NAMES"]
+           "score_images", "black_image_scores", "SCORE_NAMES", "FLIP_NAMES", "display_slope", "display_noise_mse", "rounding_excess"]
 
 #: PSNR of identical images (dB): the cap every PSNR in the project shares
 PSNR_MAX_DB = 100.0
@@ -176,14 +176,17 @@ def flip(pred: np.ndarray, ref: np.ndarray, hdr: bool = False, mask: np.ndarray 
 
 #: the figures :func:`score_images` writes, headline first
 SCORE_NAMES = ("display_psnr", "display_ssim", "flip_ldr", "flip_hdr", "linear_psnr")
+#: the ꟻLIP figures of SCORE_NAMES, with whether each is HDR-ꟻLIP
+FLIP_NAMES = (("flip_ldr", False), ("flip_hdr", True))
 
 
 def score_images(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None,
-                 with_flip: bool = True) -> dict[str, float]:
+                 with_flip: bool = True, maps: dict | None = None) -> dict[str, float]:
     """The field's figures of a linear (H, W, 3) render ``pred`` against ``ref``: display PSNR
     and SSIM (8-bit sRGB, :func:`to_display`), LDR- and HDR-ꟻLIP, linear PSNR, each on the whole
     image (``name``) and, given the subject's (H, W) mask, on its pixels (``name_subject``).
-    ``with_flip=False`` leaves ꟻLIP out (about 2-3 s per megapixel each)."""
+    ``with_flip=False`` leaves ꟻLIP out (about 2-3 s per megapixel each). ``maps``, a dict, receives
+    the (H, W) float32 ꟻLIP error maps under "flip_ldr" and "flip_hdr" (for the report's images)."""
     da, db = to_display(pred), to_display(ref)
     masks = {"": None} if mask is None else {"": None, "_subject": _check_mask(mask, np.shape(ref))}
     out = {}
@@ -192,11 +195,56 @@ def score_images(pred: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = No
         out["display_ssim" + suffix] = ssim(da, db, mask=m)
         out["linear_psnr" + suffix] = psnr(pred, ref, mask=m)
     if with_flip:
-        for name, hdr in (("flip_ldr", False), ("flip_hdr", True)):
+        for name, hdr in FLIP_NAMES:
             err = flip_map(pred, ref, hdr)
+            if maps is not None:
+                maps[name] = err
             for suffix, m in masks.items():
                 out[name + suffix] = float(err.mean(dtype=np.float64) if m is None else err[m].mean(dtype=np.float64))
     return {k: out[k] for k in sorted(out, key=lambda k: (SCORE_NAMES.index(k.removesuffix("_subject")), k))}
+
+
+def display_slope(linear: np.ndarray) -> np.ndarray:
+    """d(sRGB encoding)/d(linear) at each value (any shape, float64): 12.92 on the linear segment
+    (<= 0.0031308), (1.055 / 2.4) x^(1/2.4 - 1) above it, 0 outside [0, 1] where the display
+    clips (a small change there does not move the displayed value)."""
+    x = np.asarray(linear, dtype=np.float64)
+    power = (1.055 / 2.4) * np.maximum(x, 0.0031308) ** (1.0 / 2.4 - 1.0)
+    slope = np.where(x <= 0.0031308, 12.92, power)
+    return np.where((x < 0.0) | (x > 1.0), 0.0, slope)
+
+
+@functools.lru_cache(maxsize=None)
+def _rounding_table() -> tuple[np.ndarray, np.ndarray]:
+    """(sigma, g(sigma)) on a log grid: g(s) = E[{x}(1 - {x})], x ~ N(0, s^2), by its Fourier
+    series 1/6 - sum_k exp(-2 pi^2 k^2 s^2) / (pi^2 k^2) (4000 terms)."""
+    s = np.geomspace(1e-4, 4.0, 400)
+    k = np.arange(1, 4001, dtype=np.float64)
+    g = 1.0 / 6.0 - (np.exp(-2.0 * np.pi ** 2 * np.outer(s * s, k * k)) / (np.pi ** 2 * k * k)).sum(axis=1)
+    return s, g
+
+
+def rounding_excess(sigma_lsb: np.ndarray) -> np.ndarray:
+    """Expected extra squared difference (in LSB^2) that rounding both a value and the value plus
+    N(0, sigma^2) noise (sigma in LSB) to integers adds to sigma^2, over a uniform position on
+    the grid: E[(Q(a + x) - Q(a))^2] = E[x^2] + E[{x}(1 - {x})] (Q's difference is the piecewise
+    linear interpolation of n^2); 0 at sigma 0, ~ sigma sqrt(2 / pi) below 1e-4, 1/6 above 4."""
+    s = np.asarray(sigma_lsb, dtype=np.float64)
+    grid, g = _rounding_table()
+    return np.where(s < grid[0], s * math.sqrt(2.0 / math.pi), np.interp(s, grid, g, right=1.0 / 6.0))
+
+
+def display_noise_mse(ref: np.ndarray, var: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Display-space (8-bit sRGB in [0, 1]) MSE a perfect model is expected to score against a
+    Monte Carlo reference ``ref`` (H, W, 3) linear with per-pixel variance ``var`` of its mean,
+    over every pixel or the (H, W) ``mask``'s: the delta method's display_slope(ref)^2 var plus
+    the excess of rounding both images to 8 bits (:func:`rounding_excess` of the display sigma in
+    1/255 steps). The display noise ceiling is mse_to_psnr of it. First order: the noise small
+    against the sRGB curve's bend."""
+    m = _check_mask(mask, np.shape(ref))
+    v = display_slope(ref) ** 2 * np.maximum(np.asarray(var, dtype=np.float64), 0.0)
+    v = v + rounding_excess(255.0 * np.sqrt(v)) / 255.0 ** 2
+    return float(np.mean(v if m is None else v[m]))
 
 
 def black_image_scores(ref: np.ndarray, mask: np.ndarray | None = None, with_flip: bool = True) -> dict[str, float]:

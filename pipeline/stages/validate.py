@@ -7,8 +7,18 @@ Layout (DESIGN.md)::
     validate/errors/<model>/<view>.png     |render - reference|, mean over RGB, x ``error_gain``, grey sRGB
     validate/zmaps/<model>/<view>.png      per-pixel Z-score against the reference noise: grey
                                            (darker = smaller) where within noise, red beyond
+    validate/flip_ldr/<model>/<view>.png   LDR-ꟻLIP error map (magma: black 0 .. pale yellow 1)
+    validate/flip_hdr/<model>/<view>.png   HDR-ꟻLIP error map, same colours
     validate/plots/models.csv              one row per model: accuracy and time (DVC plots)
-    validate/plots/per_view.csv            one row per (model, view): PSNR, SSIM (DVC plots)
+    validate/plots/per_view.csv            one row per (model, view): display PSNR, SSIM, ꟻLIP (DVC plots)
+
+The figures, headline first (:func:`render.metrics.score_images`): ``display_psnr`` and
+``display_ssim`` (8-bit sRGB images, as NeRF, TensoRF and Instant-NGP report), ``flip_ldr`` (LDR-ꟻLIP
+on the display images) and ``flip_hdr`` (HDR-ꟻLIP on linear radiance), ``linear_psnr`` (PSNR of
+linear radiance clipped to [0, 1]); each also on the subject's pixels (``<name>_subject``: the
+capture's ``masks/<view>.png``, area-averaged to a smaller render; null when the capture has no
+mask or the view shows no subject pixel). ``reference.black`` holds the all-black image's scores
+(means over views, same names), so an empty background cannot carry a figure.
     validate/manifest.json
     validate/report.html                   written afterwards by :mod:`pipeline.report`
 
@@ -31,15 +41,18 @@ independent of the model, E[(model - ref)^2] = (model - truth)^2 + var_ref, so p
   noise explains (near 1: the model is as good as this reference can tell);
 * ``psnr_truth_est`` = 10 log10(1 / (mse - noise_mse)): the PSNR against the noise-free truth,
   estimated (null when mse <= noise_mse, flagged ``within_noise``);
-* ``reference.psnr_black_mean``: what an all-black image scores (mostly dark scenes score well
-  doing nothing: a model's PSNR means something only above this);
+* ``reference.black``: what an all-black image scores (mostly dark scenes score well doing
+  nothing: a model's figure means something only above this);
+* ``display_psnr_noise_ceiling`` / ``display_psnr_truth_est``: the same accounting in display
+  space, the noise's display MSE by the delta method (:func:`render.metrics.display_noise_mse`:
+  mean of the sRGB curve's slope^2 x var_ref) and the truth estimate from the display MSE minus it;
 * ``z_within_fraction``: the fraction of pixel channels with z = |model - ref| / sigma_ref at most
   z_crit = Phi^-1(1 - alpha / 2) (two-sided, per-pixel alpha, sigma_ref = sqrt(var_ref) clamped
   below at ``sigma_floor``; the Z-test of REFERENCES.md). A model equal to the truth scores about
   1 - alpha.
 
-These noise figures use unclipped linear radiance; ``psnr`` and ``ssim`` are
-:mod:`render.metrics`' (images clipped to [0, 1]), as every stage reports them. Every PSNR here
+The linear noise figures use unclipped linear radiance; the scores are :mod:`render.metrics`'
+(images clipped to [0, 1]), as every stage reports them. Every PSNR here
 follows render.metrics' convention: an MSE of 0 (identical images, an exact reference) gives
 the finite cap PSNR_MAX_DB = 100 dB, never infinity or null.
 
@@ -59,7 +72,9 @@ import numpy as np
 from scipy.stats import norm
 
 from render.image_io import write_png
-from render.metrics import mse_to_psnr, psnr, ssim
+from render.image_io import read_png
+from render.metrics import (SCORE_NAMES, black_image_scores, display_noise_mse, mse_to_psnr, score_images,
+                            to_display)
 
 from ..artifacts import (MANIFEST, BadInput, Manifest, atomic_stage, check_file_stem, check_out, read_json,
                          read_manifest, read_stage_manifest, write_json)
@@ -79,11 +94,13 @@ _SAFE = re.compile(r"[^A-Za-z0-9_.-]")
 class ValidateConfig:
     """alpha: per-pixel two-sided level of the Z-test; sigma_floor: lower clamp of the reference's
     standard deviation (linear radiance; pixels whose samples all agreed, e.g. black background,
-    have zero variance); error_gain: multiplier of the error PNGs."""
+    have zero variance); error_gain: multiplier of the error PNGs; flip: score ꟻLIP and write its
+    maps (about 5 s per 1280x960 view and model, LDR and HDR)."""
 
     alpha: float = 0.01
     sigma_floor: float = 1e-3
     error_gain: float = 8.0
+    flip: bool = True
 
     def __post_init__(self):
         if not 0.0 < self.alpha < 1.0:
@@ -148,20 +165,30 @@ def z_scores(render: np.ndarray, ref: np.ndarray, var: np.ndarray, sigma_floor: 
     return np.abs(render.astype(np.float64) - ref) / sigma
 
 
-def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: ValidateConfig = ValidateConfig()
-                 ) -> dict:
+def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: ValidateConfig = ValidateConfig(),
+                 mask: np.ndarray | None = None, maps: dict | None = None) -> dict:
     """Scores of one (H, W, 3) float32 linear render against the reference mean and its variance
-    (module docstring): psnr, ssim, rmse, mse, noise_mse, noise_share, psnr_noise_ceiling,
-    psnr_truth_est, within_noise, z_within_fraction. Finite numbers or null, never NaN/Inf."""
+    (module docstring): the field's figures of :func:`render.metrics.score_images` (display_psnr,
+    display_ssim, flip_ldr, flip_hdr, linear_psnr; ``_subject`` variants on the (H, W) ``mask``'s
+    pixels when given and not empty, else null), and the noise accounting: rmse, mse, noise_mse,
+    noise_share, psnr_noise_ceiling, psnr_truth_est, within_noise, z_within_fraction (linear), and
+    display_psnr_noise_ceiling / display_psnr_truth_est (display, delta method). ``maps`` receives
+    the ꟻLIP error maps. Finite numbers or null, never NaN/Inf."""
     d = render.astype(np.float64) - ref
     mse = float(np.mean(d * d))
     noise = float(np.mean(np.maximum(var, 0.0), dtype=np.float64))
     z_crit = float(norm.ppf(1.0 - config.alpha / 2.0))
     z = z_scores(render, ref, var, config.sigma_floor)
     excess = mse - noise
+    subject = mask if mask is not None and np.any(mask) else None
+    scores = score_images(render, ref, subject, with_flip=config.flip, maps=maps)
+    if subject is None:  # no subject pixel in view (or no mask): the subject's figures are absent
+        scores.update({f"{k}_subject": None for k in list(scores)})
+    display_mse = mse_to_display_mse(render, ref)
+    display_noise = display_noise_mse(ref, var)
+    display_excess = display_mse - display_noise
     return {
-        "psnr": psnr(render, ref),  # identical images: render.metrics.PSNR_MAX_DB
-        "ssim": ssim(render, ref),
+        **scores,  # identical images: render.metrics.PSNR_MAX_DB
         "rmse": math.sqrt(mse),
         "mse": mse,
         "noise_mse": noise,
@@ -169,8 +196,29 @@ def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: V
         "psnr_noise_ceiling": mse_to_psnr(noise),
         "psnr_truth_est": mse_to_psnr(excess) if excess > 0 else None,  # None: the error is within noise
         "within_noise": bool(excess <= 0),
+        "display_psnr_noise_ceiling": mse_to_psnr(display_noise),
+        "display_psnr_truth_est": mse_to_psnr(display_excess) if display_excess > 0 else None,
         "z_within_fraction": float(np.mean(z <= z_crit)),
     }
+
+
+def mse_to_display_mse(render: np.ndarray, ref: np.ndarray) -> float:
+    """MSE of the two images' display (8-bit sRGB) encodings, the one display_psnr scores."""
+    return float(np.mean((to_display(render) - to_display(ref)) ** 2))
+
+
+#: ꟻLIP's magma colour map (its error maps' convention), sampled at 0, 1/8, ..., 1 (sRGB 0..255)
+_MAGMA = np.array([[0, 0, 4], [28, 16, 68], [79, 18, 123], [129, 37, 129], [181, 54, 122], [229, 80, 100],
+                   [251, 135, 97], [254, 194, 135], [252, 253, 191]], np.float64)
+
+
+def flip_png(err: np.ndarray) -> np.ndarray:
+    """(H, W) ꟻLIP error in [0, 1] -> (H, W, 3) uint8 magma image (black 0, pale yellow 1), as
+    ꟻLIP's own tool draws its maps."""
+    t = np.clip(np.asarray(err, np.float64), 0.0, 1.0) * (len(_MAGMA) - 1)
+    i = np.minimum(t.astype(int), len(_MAGMA) - 2)
+    f = (t - i)[..., None]
+    return np.round(_MAGMA[i] * (1.0 - f) + _MAGMA[i + 1] * f).astype(np.uint8)
 
 
 def zmap_png(z: np.ndarray, z_crit: float) -> np.ndarray:
@@ -214,11 +262,38 @@ def _mean(values: list) -> float | None:
     return float(np.mean(v)) if v else None
 
 
+#: the per-view figures averaged into a model's summary (``<key>_mean``), headline first
+SUMMARY_KEYS = (*[n + s for n in SCORE_NAMES for s in ("", "_subject")], "display_psnr_noise_ceiling",
+                "display_psnr_truth_est", "psnr_noise_ceiling", "psnr_truth_est", "noise_share", "z_within_fraction",
+                "rmse")
+
+
 def _summary(per_view: dict) -> dict:
-    keys = ("psnr", "ssim", "rmse", "noise_share", "psnr_noise_ceiling", "psnr_truth_est", "z_within_fraction")
-    out = {f"{k}_mean": _mean([m[k] for m in per_view.values()]) for k in keys}
+    out = {f"{k}_mean": _mean([m.get(k) for m in per_view.values()]) for k in SUMMARY_KEYS}
     out["views_within_noise"] = int(sum(m["within_noise"] for m in per_view.values()))
     return out
+
+
+def subject_mask(capture_dir: Path, view: str, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The capture's subject mask of ``view`` (``masks/<view>.png``, nonzero = subject) at an image
+    ``shape`` (H, W[, C]): as is, or area-averaged by the integer factor k of a smaller render (a
+    block is subject when at least half its pixels are); None when the capture has no such mask.
+    BadInput naming the file when it is unreadable or of a size no integer factor maps."""
+    path = Path(capture_dir) / "masks" / f"{view}.png"
+    if not path.is_file():
+        return None
+    try:
+        m = read_png(path)
+    except Exception as exc:  # a damaged PNG: one line naming it
+        raise BadInput(f"{path}: unreadable PNG ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+    m = (m.max(axis=2) if m.ndim == 3 else m) > 0
+    h, w = shape[:2]
+    if m.shape == (h, w):
+        return m
+    k = m.shape[0] // h if h else 0
+    if k < 2 or m.shape != (k * h, k * w):
+        raise BadInput(f"{path}: shape {m.shape}, expected {(h, w)} or an integer multiple of it")
+    return area_average(m[..., None].astype(np.float64), k)[..., 0] >= 0.5
 
 
 # ------------------------------------------------------------------------------------- time
@@ -266,15 +341,18 @@ def pose_summary(artifacts_dir: Path) -> dict:
 
 
 #: per-view figures kept in metrics.json (``dvc metrics show`` stays readable); details.json has all
-COMPACT_VIEW_KEYS = ("psnr", "ssim", "psnr_truth_est", "noise_share", "z_within_fraction", "scale")
+COMPACT_VIEW_KEYS = ("display_psnr", "display_psnr_subject", "display_ssim", "flip_ldr", "flip_hdr", "linear_psnr",
+                     "display_psnr_truth_est", "psnr_truth_est", "noise_share", "z_within_fraction", "scale")
 
 
 def _compact(metrics: dict) -> dict:
     out = {**metrics, "models": {}}
     for n, r in metrics["models"].items():
-        out["models"][n] = {**r, "per_view": {v: {k: m[k] for k in COMPACT_VIEW_KEYS} for v, m in r["per_view"].items()}}
+        out["models"][n] = {**r, "per_view": {v: {k: m.get(k) for k in COMPACT_VIEW_KEYS}
+                                              for v, m in r["per_view"].items()}}
     out["reference"] = {**metrics["reference"], "per_view": {
-        v: {"psnr_noise_ceiling": m["psnr_noise_ceiling"]} for v, m in metrics["reference"]["per_view"].items()}}
+        v: {k: m[k] for k in ("display_psnr_noise_ceiling", "psnr_noise_ceiling")}
+        for v, m in metrics["reference"]["per_view"].items()}}
     return out
 
 
@@ -322,14 +400,25 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
         manifest.add_input(ref_dir / "linear" / f"{v}.exr")
         manifest.add_input(ref_dir / "variance" / f"{v}.exr")
     rp = ref_manifest.get("params", {})
-    ref_noise = {v: float(np.mean(var, dtype=np.float64)) for v, (_, var) in refs.items()}
+    capture_dir = artifacts_dir / "capture"
+    masks = {v: subject_mask(capture_dir, v, refs[v][0].shape) for v in views}
+    per_ref = {}
+    black_views = {}
+    for v, (r, var) in refs.items():
+        n, dn = float(np.mean(var, dtype=np.float64)), display_noise_mse(r, var)
+        per_ref[v] = {"noise_mse": n, "psnr_noise_ceiling": mse_to_psnr(n),
+                      "display_noise_mse": dn, "display_psnr_noise_ceiling": mse_to_psnr(dn)}
+        # what an empty (black) image scores: a model must beat this to have rendered anything
+        m = masks[v] if masks[v] is not None and masks[v].any() else None
+        black_views[v] = black_image_scores(r, m, with_flip=config.flip)
     reference = {"spp": rp.get("spp"), "integrator": rp.get("integrator"), "views": len(views),
-                 "wall_time_s": ref_manifest.get("wall_time_s"),
-                 "per_view": {v: {"noise_mse": n, "psnr_noise_ceiling": mse_to_psnr(n)}
-                              for v, n in ref_noise.items()}}
-    reference["psnr_noise_ceiling_mean"] = _mean([p["psnr_noise_ceiling"] for p in reference["per_view"].values()])
-    # what an empty (black) image scores: a model must beat this to have rendered anything
-    reference["psnr_black_mean"] = _mean([psnr(np.zeros_like(r), r) for r, _ in refs.values()])
+                 "wall_time_s": ref_manifest.get("wall_time_s"), "per_view": per_ref,
+                 "subject_masks": sum(m is not None for m in masks.values())}
+    for key in ("psnr_noise_ceiling", "display_psnr_noise_ceiling"):
+        reference[f"{key}_mean"] = _mean([p[key] for p in per_ref.values()])
+    reference["black"] = {f"{k}_mean": _mean([b.get(k) for b in black_views.values()])
+                          for k in SUMMARY_KEYS if any(k in b for b in black_views.values())}
+    reference["black_per_view"] = black_views
     results, view_rows = {}, []
     with atomic_stage(out, "validate", overwrite) as tmp, progress_bar(quiet) as bar:
         task = bar.add_task("validate", total=len(models) * len(views), info=f"{len(models)} models")
@@ -343,11 +432,15 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                 if img.ndim == 2:
                     img = np.repeat(img[..., None], 3, axis=2)
                 ref, var, k = reference_at(ref, var, img.shape, path)
+                mask = subject_mask(capture_dir, v, img.shape) if masks[v] is not None else None
                 manifest.add_input(path)
-                per_view[v] = {**compare_view(img, ref, var, config), "scale": k}
-                write_png(tmp / "errors" / model_subfolder(m.name) / f"{v}.png", error_image(img, ref, config.error_gain))
-                write_png(tmp / "zmaps" / model_subfolder(m.name) / f"{v}.png",
-                          zmap_png(z_scores(img, ref, var, config.sigma_floor), z_crit))
+                maps: dict = {}
+                per_view[v] = {**compare_view(img, ref, var, config, mask, maps), "scale": k}
+                sub = model_subfolder(m.name)
+                write_png(tmp / "errors" / sub / f"{v}.png", error_image(img, ref, config.error_gain))
+                write_png(tmp / "zmaps" / sub / f"{v}.png", zmap_png(z_scores(img, ref, var, config.sigma_floor), z_crit))
+                for name, err in maps.items():
+                    write_png(tmp / name / sub / f"{v}.png", flip_png(err))
                 view_rows.append({"model": m.name, "view": v, "model_view": f"{m.name}:{v}", **per_view[v]})
                 bar.advance(task)
             method = _poses_method(mm)
@@ -358,24 +451,32 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
             results[m.name] = {**_summary(per_view), "stage": mm.get("stage", m.name.split("/")[0]),
                                "poses": method or "capture", "time_s": t, "upstream_s": round(upstream, 3),
                                "end_to_end_s": round(t + upstream, 3), "per_view": per_view}
-        scored = [n for n in results if results[n]["psnr_mean"] is not None]
-        best = max(scored, key=lambda n: (results[n]["psnr_mean"], -results[n]["end_to_end_s"])) if scored else None
+        scored = [n for n in results if results[n]["display_psnr_mean"] is not None]
+        best = max(scored, key=lambda n: (results[n]["display_psnr_mean"], -results[n]["end_to_end_s"])) if scored else None
         metrics = {"reference": reference, "models": results, "poses": pose_summary(artifacts_dir),
                    "skipped": skipped, "z_crit": z_crit,
-                   "best": {"model": best, "psnr_mean": results[best]["psnr_mean"],
-                            "ssim_mean": results[best]["ssim_mean"], "end_to_end_s": results[best]["end_to_end_s"]}
+                   "best": {"model": best, **{k: results[best][k] for k in (
+                       "display_psnr_mean", "display_ssim_mean", "flip_ldr_mean", "linear_psnr_mean", "end_to_end_s")}}
                    if best else None}
         write_json(tmp / "details.json", metrics)
         write_json(tmp / "metrics.json", _compact(metrics))
         model_rows = [{"model": n, **{k: v for k, v in r.items() if k != "per_view"}} for n, r in results.items()]
         write_csv(tmp / "plots" / "models.csv", model_rows,
-                   ["model", "stage", "poses", "psnr_mean", "ssim_mean", "psnr_truth_est_mean", "noise_share_mean",
-                    "z_within_fraction_mean", "psnr_noise_ceiling_mean", "time_s", "upstream_s", "end_to_end_s"])
+                   ["model", "stage", "poses", "display_psnr_mean", "display_psnr_subject_mean", "display_ssim_mean",
+                    "flip_ldr_mean", "flip_hdr_mean", "linear_psnr_mean", "display_psnr_truth_est_mean",
+                    "psnr_truth_est_mean", "noise_share_mean", "z_within_fraction_mean",
+                    "display_psnr_noise_ceiling_mean", "psnr_noise_ceiling_mean", "time_s", "upstream_s",
+                    "end_to_end_s"])
         write_csv(tmp / "plots" / "per_view.csv", view_rows,
-                   ["model_view", "model", "view", "psnr", "ssim", "psnr_noise_ceiling", "noise_share",
+                   ["model_view", "model", "view", "display_psnr", "display_psnr_subject", "display_ssim", "flip_ldr",
+                    "flip_hdr", "linear_psnr", "display_psnr_noise_ceiling", "psnr_noise_ceiling", "noise_share",
                     "z_within_fraction"])
         manifest.metrics = {"models": len(results), "views": len(views), "best": best,
-                            **{f"psnr_mean.{n}": r["psnr_mean"] for n, r in results.items()},
+                            **{f"display_psnr_mean.{n}": r["display_psnr_mean"] for n, r in results.items()},
+                            **{f"flip_ldr_mean.{n}": r["flip_ldr_mean"] for n, r in results.items()},
+                            **{f"linear_psnr_mean.{n}": r["linear_psnr_mean"] for n, r in results.items()},
+                            "black.display_psnr_mean": reference["black"]["display_psnr_mean"],
+                            "display_psnr_noise_ceiling_mean": reference["display_psnr_noise_ceiling_mean"],
                             "psnr_noise_ceiling_mean": reference["psnr_noise_ceiling_mean"]}
         result = manifest.write(tmp)
     return result

@@ -38,7 +38,7 @@ REFERENCE_SPP = 16
 
 # Floors (dB) on the mean held-out PSNR against the 16 spp reference, set from a measured run
 # (2026-11-22; the figures are deterministic: same seeds, same numbers) minus about 1.2 dB. On
-# this mostly black scene an empty image already scores 26.73 dB (psnr_black_mean), so every
+# this mostly black scene an empty image already scores 26.73 dB (reference.black.linear_psnr_mean), so every
 # model must also beat that by BLACK_MARGIN:
 #   slab (direct, ring of 4, uv 4, st 24, depth mode)   measured 29.25 dB -> floor 28.0
 #   slab-rebin (rebinned on the poses/gt cameras)       measured 28.89 dB -> floor 27.7
@@ -135,7 +135,11 @@ def test_a_perfect_model_scores_the_noise_ceiling_and_passes_the_z_test():
     n = truth.size
     assert m["psnr_noise_ceiling"] == pytest.approx(-10 * math.log10(sigma ** 2), abs=1e-3)
     assert m["mse"] == pytest.approx(sigma ** 2, rel=5 * math.sqrt(2 / n))  # chi-square: sd 2/n relative
-    assert m["psnr"] == pytest.approx(m["psnr_noise_ceiling"], abs=0.1)
+    assert m["linear_psnr"] == pytest.approx(m["psnr_noise_ceiling"], abs=0.1)
+    # display space: the ceiling predicts the display MSE of the truth within the same 5 standard
+    # errors (render.metrics' test checks the prediction itself on 196k channels)
+    assert 10 ** (-m["display_psnr"] / 10) == pytest.approx(10 ** (-m["display_psnr_noise_ceiling"] / 10),
+                                                            rel=5 * math.sqrt(2 / n))
     assert m["noise_share"] > 0.95
     assert abs(m["z_within_fraction"] - 0.99) < 5 * math.sqrt(0.99 * 0.01 / n)
 
@@ -160,7 +164,10 @@ def test_identical_and_zero_variance_images_stay_finite():
 
     ref = np.zeros((8, 8, 3), np.float32)
     m = compare_view(ref, ref, np.zeros_like(ref))
-    assert m["psnr"] == m["psnr_noise_ceiling"] == PSNR_MAX_DB and m["z_within_fraction"] == 1.0
+    assert m["linear_psnr"] == m["psnr_noise_ceiling"] == PSNR_MAX_DB and m["z_within_fraction"] == 1.0
+    assert m["display_psnr"] == m["display_psnr_noise_ceiling"] == PSNR_MAX_DB and m["display_psnr_truth_est"] is None
+    assert m["flip_ldr"] == m["flip_hdr"] == 0.0 and m["display_ssim"] == 1.0
+    assert m["display_psnr_subject"] is None  # no mask: no subject figures
     assert m["psnr_truth_est"] is None and m["within_noise"]
     json.dumps(m, allow_nan=False)
 
@@ -220,12 +227,46 @@ def test_discovery_judges_every_finished_model_folder(fake_scene):
     assert met["models"]["nerf/half"]["per_view"]["test_000"]["scale"] == 2
     fast = met["models"]["nerf/fast"]
     assert fast["poses"] == "colmap" and fast["end_to_end_s"] == pytest.approx(12.0)
-    assert met["best"]["model"] == max(met["models"], key=lambda n: met["models"][n]["psnr_mean"])
+    assert met["best"]["model"] == max(met["models"], key=lambda n: met["models"][n]["display_psnr_mean"])
     for v in ("test_000", "test_001"):
         assert (fake_scene / "validate" / "errors" / "nerf" / "fast" / f"{v}.png").is_file()
         assert (fake_scene / "validate" / "zmaps" / "slab" / f"{v}.png").is_file()
     rows = (fake_scene / "validate" / "plots" / "per_view.csv").read_text().splitlines()
     assert rows[0].startswith("model_view,") and len(rows) == 1 + 3 * 2
+
+
+def test_display_figures_subject_and_black_row_through_validate(fake_scene):
+    """Closed forms through the stage: view test_000's reference is 0.2 (linear) on its left half,
+    the subject (capture/masks), and 0 on the right; the slab renders 0.5 everywhere. In 8-bit sRGB
+    0.2 -> 124, 0.5 -> 188, 0 -> 0, so the subject's display PSNR is 20 log10(255 / 64), the whole
+    image's 10 log10(255^2 / ((64^2 + 188^2) / 2)), linear 20 log10(1 / 0.3) on the subject; the
+    black row is render.metrics.black_image_scores of each view with its mask, and the ꟻLIP maps
+    are written."""
+    from render.metrics import black_image_scores
+
+    ref = np.zeros((6, 8, 3), np.float32)
+    ref[:, :4] = 0.2
+    write_exr(fake_scene / "reference" / "linear" / "test_000.exr", ref)
+    mask = np.zeros((6, 8), np.uint8)
+    mask[:, :4] = 255
+    from render.image_io import write_png
+    write_png(fake_scene / "capture" / "masks" / "test_000.png", mask)
+    run_validate(fake_scene, quiet=True)
+    met = json.loads((fake_scene / "validate" / "details.json").read_text())
+    v = met["models"]["slab"]["per_view"]["test_000"]
+    assert v["display_psnr_subject"] == pytest.approx(20 * math.log10(255 / 64), abs=1e-9)
+    assert v["display_psnr"] == pytest.approx(10 * math.log10(255 ** 2 / ((64 ** 2 + 188 ** 2) / 2)), abs=1e-9)
+    assert v["linear_psnr_subject"] == pytest.approx(20 * math.log10(1 / 0.3), abs=1e-5)
+    assert met["models"]["slab"]["per_view"]["test_001"]["display_psnr_subject"] is None  # no mask for it
+    black = met["reference"]["black_per_view"]["test_000"]
+    assert black == pytest.approx(black_image_scores(ref, mask > 0))
+    assert black["display_psnr_subject"] == pytest.approx(20 * math.log10(255 / 124), abs=1e-9)
+    assert met["reference"]["black"]["display_psnr_mean"] == pytest.approx(
+        np.mean([b["display_psnr"] for b in met["reference"]["black_per_view"].values()]))
+    assert 0.0 < v["flip_ldr_subject"] <= 1.0 and 0.0 < v["flip_hdr"] <= 1.0
+    for kind in ("flip_ldr", "flip_hdr"):
+        assert (fake_scene / "validate" / kind / "slab" / "test_000.png").is_file()
+    json.dumps(met, allow_nan=False)
 
 
 def test_bad_input_names_the_file_and_writes_nothing(fake_scene, tmp_path):
@@ -275,18 +316,18 @@ def test_metrics_sit_above_the_floors(tiny_artifacts):
     met = json.loads((tiny_artifacts / "validate" / "metrics.json").read_text())
     assert met["reference"]["spp"] == REFERENCE_SPP and met["reference"]["views"] == 2
     assert met["reference"]["psnr_noise_ceiling_mean"] > NOISE_CEILING_FLOOR
-    black = met["reference"]["psnr_black_mean"]
+    black = met["reference"]["black"]["linear_psnr_mean"]
     for name, floor in FLOORS.items():
-        assert met["models"][name]["psnr_mean"] > floor, (name, met["models"][name]["psnr_mean"])
-        assert met["models"][name]["psnr_mean"] > black + BLACK_MARGIN, (name, black)
-        assert 0.0 < met["models"][name]["ssim_mean"] <= 1.0
+        assert met["models"][name]["linear_psnr_mean"] > floor, (name, met["models"][name]["linear_psnr_mean"])
+        assert met["models"][name]["linear_psnr_mean"] > black + BLACK_MARGIN, (name, black)
+        assert 0.0 < met["models"][name]["display_ssim_mean"] <= 1.0
         assert 0.0 <= met["models"][name]["z_within_fraction_mean"] <= 1.0
     assert met["models"]["slab-rebin"]["poses"] == "gt"
     assert met["models"]["slab"]["poses"] == "capture"
     if WITH_NERF:  # 40 steps of a shrunk model: above an empty image on lit pixels, not yet above the slabs
         nerf_steps = json.loads((tiny_artifacts / "nerf" / "fast" / "metrics.json").read_text())["steps"]
         assert nerf_steps == NERF_STEPS, f"the NeRF trained {nerf_steps} of {NERF_STEPS} steps: judged on what?"
-        assert met["models"]["nerf/fast"]["psnr_mean"] > black, (met["models"]["nerf/fast"]["psnr_mean"], black)
+        assert met["models"]["nerf/fast"]["linear_psnr_mean"] > black, (met["models"]["nerf/fast"]["linear_psnr_mean"], black)
         for ref_file in sorted((tiny_artifacts / "reference" / "linear").glob("*.exr")):
             ref = read_exr(ref_file).astype(np.float64)
             img = read_exr(tiny_artifacts / "nerf" / "fast" / "renders" / ref_file.name).astype(np.float64)
@@ -336,10 +377,10 @@ plots:
       template: scatter
       x: end_to_end_s
       y:
-        tiny/validate/plots/models.csv: psnr_mean
+        tiny/validate/plots/models.csv: display_psnr_mean
   - PSNR per held-out view:
       template: bar_horizontal
-      x: psnr
+      x: display_psnr
       y:
         tiny/validate/plots/per_view.csv: model_view
 """
@@ -358,7 +399,7 @@ def test_dvc_metrics_and_plots_show_read_the_validate_outputs(tiny_artifacts, tm
     shown = run("metrics", "show", "--json")
     assert shown.returncode == 0, shown.stderr
     flat = json.dumps(json.loads(shown.stdout))
-    assert "psnr_mean" in flat and "slab-rebin" in flat
+    assert "display_psnr_mean" in flat and "flip_ldr_mean" in flat and "slab-rebin" in flat
     plots = run("plots", "show", "--json")
     assert plots.returncode == 0, plots.stderr
     doc = json.loads(plots.stdout)["data"]
