@@ -10,6 +10,12 @@ Integrators whose samples are not independent (sppm's progressive passes, pssmlt
 chains) split a render into independent *groups* instead (:func:`group_ranges`): each group is
 one sample of the film (its image), so the mean is the mean of the group images and the
 variance that of the mean across groups, and renders of whole groups merge like any other.
+
+Stratified samplers (the Sobol sampler of :mod:`render.sobol`) make a pixel's samples negatively
+correlated, so (S2 - S1^2 / n) / (n (n - 1)) no longer estimates the variance of the mean. Their
+films also keep per-*replicate* sums r1 (R independent scramblings, sample s in replicate
+s mod R) and counts rn, and the variance of the mean is estimated from the spread of the
+replicate means (:meth:`Film.variance`); these sums merge by addition like the others.
 """
 from __future__ import annotations
 
@@ -61,13 +67,17 @@ def merge_stats(a: dict, b: dict) -> dict:
 
 @dataclass
 class Film:
-    """Moments of a (height, width) RGB film. s1, s2: (H*W, 3) float64; n: (H*W,) int64."""
+    """Moments of a (height, width) RGB film. s1, s2: (H*W, 3) float64; n: (H*W,) int64.
+    Optionally (stratified samplers) r1: (R, H*W, 3) float64 per-replicate sums and rn: (R,)
+    int64 samples per replicate (every pixel receives every sample index of a render)."""
 
     width: int
     height: int
     s1: np.ndarray = None
     s2: np.ndarray = None
     n: np.ndarray = None
+    r1: np.ndarray | None = None
+    rn: np.ndarray | None = None
 
     def __post_init__(self):
         p = self.width * self.height
@@ -96,7 +106,12 @@ class Film:
         """A new film holding both films' samples."""
         if (self.width, self.height) != (other.width, other.height):
             raise ValueError("cannot merge films of different sizes")
-        return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n)
+        if (self.r1 is None) != (other.r1 is None) or (self.r1 is not None and self.r1.shape != other.r1.shape):
+            raise ValueError("cannot merge films of different samplers (replicate sums on one side only)")
+        if self.r1 is None:
+            return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n)
+        return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n,
+                    self.r1 + other.r1, self.rn + other.rn)
 
     def mean(self) -> np.ndarray:
         """(H, W, 3) float32 per-pixel mean (0 where a pixel has no samples)."""
@@ -104,12 +119,31 @@ class Film:
         return (self.s1 / n).reshape(self.height, self.width, 3).astype(np.float32)
 
     def variance(self) -> np.ndarray:
-        """(H, W, 3) float32 variance of the per-pixel mean (0 where fewer than 2 samples)."""
+        """(H, W, 3) float32 variance of the per-pixel mean (0 where fewer than 2 samples).
+
+        With replicate sums: R' / (R' - 1) sum_r (n_r / n)^2 (m_r - m)^2 over the R' replicates
+        holding samples (m_r their means, m the pixel mean; 0 when R' < 2), the variance of a
+        mean of R' independent replicate means; unbiased when the n_r are equal."""
+        if self.r1 is not None:
+            return self._replicate_variance()
         n = self.n.astype(np.float64)[:, None]
         ok = n >= 2
         nn = np.where(ok, n, 2.0)
         var = (self.s2 - self.s1 * self.s1 / nn) / (nn * (nn - 1.0))
         var = np.where(ok, np.maximum(var, 0.0), 0.0)
+        return var.reshape(self.height, self.width, 3).astype(np.float32)
+
+    def _replicate_variance(self) -> np.ndarray:
+        filled = self.rn > 0
+        k = int(filled.sum())
+        if k < 2:
+            return np.zeros((self.height, self.width, 3), np.float32)
+        nr = self.rn[filled].astype(np.float64)
+        total = nr.sum()
+        means = self.r1[filled] / nr[:, None, None]  # (R', P, 3)
+        m = self.r1[filled].sum(0) / total
+        w2 = (nr / total) ** 2
+        var = k / (k - 1.0) * np.einsum("r,rpc->pc", w2, (means - m) ** 2)
         return var.reshape(self.height, self.width, 3).astype(np.float32)
 
 

@@ -17,7 +17,7 @@ from ..film import RenderResult
 from ..scene import Scene
 from .path import trace_view
 from .prepared import PreparedScene
-from .settings import RenderSettings, check_heuristic, check_strategy
+from .settings import RenderSettings, check_heuristic, check_sampler, check_strategy
 
 __all__ = ["Options", "render_result"]
 
@@ -31,10 +31,13 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
+    #: random numbers: "sobol" (Owen-scrambled Sobol, render.sobol) or "independent" (hash)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         check_strategy(self.strategy)
         check_heuristic(self.heuristic)
+        check_sampler(self.sampler)
 
 
 def render_result(scene: Scene, camera: Camera, settings: RenderSettings, options: Options,

@@ -35,8 +35,13 @@ With 'caustics' not among the effects, light that reaches a diffuse vertex throu
 specular vertices (from an emitter or the background) is dropped: the pruned render simulates
 the listed effects and nothing more.
 
-Random numbers are a hash of (seed, pixel, sample index, dimension) (:mod:`render.sampling`),
-so renders of disjoint sample ranges merge exactly (:func:`render.film.merge_results`).
+Random numbers are a pure function of (seed, pixel, sample index, dimension), so renders of
+disjoint sample ranges merge exactly (:func:`render.film.merge_results`): by default
+Owen-scrambled Sobol points (``sampler="sobol"``, :mod:`render.sobol`; sample s of a pixel is
+point s div R of its replicate s mod R, and the variance image comes from the R = 16 replicate
+means, :meth:`render.film.Film.variance`), or an independent hash per dimension
+(``sampler="independent"``, :mod:`render.sampling`; the variance image is the sample variance
+over n).
 """
 from __future__ import annotations
 
@@ -50,10 +55,12 @@ from ..camera import Camera
 from ..film import Film, RenderResult
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
-from .path_kernels import (F_DELTA, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig, PinholeCamera,
-                           accumulate, add_unoccluded, sample_camera_rays, kernel_scene, last_bounce_queue, shade_bounce)
+from ..sobol import REPLICATES, SAMPLERS
+from .path_kernels import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
+                           PinholeCamera, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays,
+                           kernel_scene, last_bounce_queue, shade_bounce)
 from .prepared import PreparedScene
-from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent
+from .settings import RenderSettings, check_heuristic, check_sampler, check_strategy, heuristic_exponent
 
 __all__ = ["Options", "render_result", "kernel_scene_of", "path_config", "pinhole_of"]
 
@@ -73,10 +80,13 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
+    #: random numbers: "sobol" (Owen-scrambled Sobol, render.sobol) or "independent" (hash)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         check_strategy(self.strategy)
         check_heuristic(self.heuristic)
+        check_sampler(self.sampler)
         if self.rr_depth < 0:
             raise ValueError(f"path: rr_depth must be >= 0, got {self.rr_depth}")
 
@@ -90,9 +100,10 @@ def kernel_scene_of(ps: PreparedScene) -> KernelScene:
 
 
 def path_config(ps: PreparedScene, max_depth: int, strategy: str, heuristic: str, roulette: bool, rr_depth: int,
-                direct: bool, caustics: bool) -> PathConfig:
+                direct: bool, caustics: bool, sampler: str = "sobol") -> PathConfig:
     """The kernels' :class:`render.integrators.path_kernels.PathConfig` for ``ps`` (roulette is
-    ignored when ``direct``: its paths end at the first diffuse vertex)."""
+    ignored when ``direct``: its paths end at the first diffuse vertex; sampler: a name of
+    render.sobol.SAMPLERS)."""
     lights = ps.lights
     has_bg = bool(ps.background.max() > 0)
     nee_area = strategy != "bsdf" and lights.has_area
@@ -101,7 +112,8 @@ def path_config(ps: PreparedScene, max_depth: int, strategy: str, heuristic: str
         mis_exponent=heuristic_exponent(heuristic), roulette=bool(roulette and not direct), rr_depth=int(rr_depth),
         has_bg=has_bg, nee_area=bool(nee_area), nee_any=bool(nee_area or lights.has_delta),
         mis_on_hits=bool(lights.has_area and strategy != "bsdf"),
-        continue_diffuse=not (direct and strategy == "light" and not has_bg), has_area=bool(lights.has_area))
+        continue_diffuse=not (direct and strategy == "light" and not has_bg), has_area=bool(lights.has_area),
+        sampler=SAMPLERS[sampler])
 
 
 def pinhole_of(cam: Camera) -> PinholeCamera:
@@ -155,7 +167,7 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
     sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                cur[5], cur[6], jit)
+                       cur[5], cur[6], jit, cfg.sampler)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -194,12 +206,15 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
                effects: frozenset, ps: PreparedScene, progress, direct: bool) -> RenderResult:
     """The wavefront driver of ``path`` and ``direct``: batches of ``settings.batch_paths`` camera
     samples over ``settings.threads`` threads, accumulated in batch order (the same sums
-    whatever the threads). options: a path or direct ``Options``."""
+    whatever the threads). options: a path or direct ``Options`` (an options type without
+    ``sampler`` gets the Sobol sampler). The Sobol sampler's film also keeps per-replicate sums
+    (:class:`render.film.Film`), so its variance image is the replicates'."""
     t0 = time.perf_counter()
     a, b = sample_range
     roulette, rr_depth = (False, 0) if direct else (options.roulette, options.rr_depth)
+    sampler = getattr(options, "sampler", "sobol")
     cfg = path_config(ps, settings.max_depth, options.strategy, options.heuristic, roulette, rr_depth, direct,
-                      "caustics" in effects)
+                      "caustics" in effects, sampler)
     query_emitters = direct and ps.emit_accel is not None and options.strategy != "light"
     k = camera.intrinsics
     total = k.width * k.height * (b - a)
@@ -210,12 +225,18 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
         return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a)
 
     film = Film(k.width, k.height)
+    npix = k.width * k.height
+    if cfg.sampler == SAMPLER_SOBOL:
+        film.r1 = np.zeros((REPLICATES, npix, 3))
+        film.rn = np.bincount(np.arange(a, b) % REPLICATES, minlength=REPLICATES).astype(np.int64)
     rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:
         results = pool.map(work, chunks) if pool is not None else map(work, chunks)
         for ch, (pix, L, nr) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
             accumulate(film.s1, film.s2, film.n, pix, L)
+            if film.r1 is not None:
+                accumulate_replicates(film.r1, ch[0], npix, a, L)
             rays += nr
             if progress is not None:
                 progress(ch[1], total)

@@ -29,12 +29,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..sobol import DIRECTIONS, REPLICATES, SOBOL_DIMS
+
 __all__ = ["KernelScene", "kernel_scene", "sample_camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
-           "accumulate", "uniform_dims", "PathConfig", "PinholeCamera"]
+           "accumulate", "accumulate_replicates", "uniform_dims", "PathConfig", "PinholeCamera",
+           "SAMPLER_INDEPENDENT", "SAMPLER_SOBOL"]
 
 LAMBERT, MIRROR, DIELECTRIC, EMISSIVE = 0, 1, 2, 3
 POINT, SPOT, DIRECTIONAL = 0, 1, 2
 STRAT_MIS, STRAT_LIGHT, STRAT_BSDF = 0, 1, 2
+SAMPLER_INDEPENDENT, SAMPLER_SOBOL = 0, 1  # render.sobol.SAMPLERS
 F_DELTA, F_AFTER_DIFF = np.uint8(1), np.uint8(2)  # per-path flags: previous vertex delta, a diffuse vertex behind
 
 _INV_PI = 1.0 / math.pi
@@ -48,6 +52,12 @@ _OFFSET_REL = 1e-6  # render.accel.OFFSET_REL
 _TMAX_CAP = 3e38  # largest tmax handed to Embree (float32)
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
+_SOBOL_V = DIRECTIONS.astype(np.uint64)  # (SOBOL_DIMS, 32): a global, frozen into the compiled code
+_MASK32 = np.uint64(0xFFFFFFFF)
+_HI32 = np.uint64(0xFFFFFFFF00000000)
+_U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
+_INV_2_32 = 1.0 / 4294967296.0
+_REPLICATES = np.uint64(REPLICATES)
 
 
 class KernelScene(NamedTuple):
@@ -138,13 +148,56 @@ def _uniform(key, dim):
     return np.float64(x >> _S11) * _INV_2_53
 
 
+@njit(inline="always", **_JIT)
+def _reverse32(v):
+    """Bit reversal of the low 32 bits of a uint64."""
+    v = ((v >> _U1) & np.uint64(0x55555555)) | ((v & np.uint64(0x55555555)) << _U1)
+    v = ((v >> _U2) & np.uint64(0x33333333)) | ((v & np.uint64(0x33333333)) << _U2)
+    v = ((v >> _U4) & np.uint64(0x0F0F0F0F)) | ((v & np.uint64(0x0F0F0F0F)) << _U4)
+    v = ((v >> _U8) & np.uint64(0x00FF00FF)) | ((v & np.uint64(0x00FF00FF)) << _U8)
+    return ((v >> _U16) | (v << _U16)) & _MASK32
+
+
+@njit(inline="always", **_JIT)
+def _sobol(key, dim):
+    """render.sobol.sobol_uniform for one Sobol path key and a dimension < SOBOL_DIMS."""
+    idx = key & _MASK32
+    v = _U0
+    k = 0
+    while idx != _U0:
+        if (idx & _U1) != _U0:
+            v ^= _SOBOL_V[dim, k]
+        idx >>= _U1
+        k += 1
+    h = _mix64((key & _HI32) + np.uint64(dim + 1) * _GOLDEN)
+    seed = h & _MASK32
+    x = _reverse32(v)
+    x = (x ^ (x * np.uint64(0x3D20ADEA))) & _MASK32
+    x = (x + seed) & _MASK32
+    x = (x * ((seed >> _U16) | _U1)) & _MASK32
+    x = (x ^ (x * np.uint64(0x05526C56))) & _MASK32
+    x = (x ^ (x * np.uint64(0x53A22864))) & _MASK32
+    x = _reverse32(x) ^ (h >> _U32)
+    return np.float64(x) * _INV_2_32
+
+
+@njit(inline="always", **_JIT)
+def _sample(sampler, key, dim):
+    """Dimension ``dim`` of a path key under ``sampler`` (SAMPLER_INDEPENDENT: the hash of
+    render.sampling.uniform; SAMPLER_SOBOL: render.sobol.sobol_uniform)."""
+    if sampler == SAMPLER_SOBOL and dim < SOBOL_DIMS:
+        return _sobol(key, dim)
+    return _uniform(key, dim)
+
+
 @njit(**_JIT)
-def uniform_dims(keys, dim0, count):
-    """(N, count) uniforms of dimensions dim0.. (equals render.sampling.uniform_block)."""
+def uniform_dims(keys, dim0, count, sampler=SAMPLER_INDEPENDENT):
+    """(N, count) uniforms of dimensions dim0.. (equals render.sampling.uniform_block, or
+    render.sobol.sobol_block when ``sampler`` is SAMPLER_SOBOL)."""
     out = np.empty((len(keys), count))
     for i in range(len(keys)):
         for j in range(count):
-            out[i, j] = _uniform(keys[i], dim0 + j)
+            out[i, j] = _sample(sampler, keys[i], dim0 + j)
     return out
 
 
@@ -161,13 +214,15 @@ class PinholeCamera(NamedTuple):
 
 
 @njit(**_JIT)
-def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit):
-    """Camera samples of flat indices [start, stop): flat = sample * npix + pixel.
+def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit,
+                       sampler=SAMPLER_SOBOL):
+    """Camera samples of flat indices [start, stop): flat = (sample - sample0) * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a
-    :class:`PinholeCamera`. Writes keys (N,) uint64, pix (N,) int64, jit (N, 2) jittered pixel
-    positions (dims 0, 1), and when ``pinhole`` the unit rays o32, d32 (N, 3) float32 (what
-    Embree traces and shading reads).
+    :class:`PinholeCamera`. Writes keys (N,) uint64 (render.sampling.path_keys, or
+    render.sobol.sobol_keys when ``sampler`` is SAMPLER_SOBOL), pix (N,) int64, jit (N, 2)
+    jittered pixel positions (dims 0, 1), and when ``pinhole`` the unit rays o32, d32 (N, 3)
+    float32 (what Embree traces and shading reads).
     """
     rot, origin = cam.rotation, cam.origin
     for i in range(stop - start):
@@ -175,11 +230,15 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
         p = flat % npix
         s = sample0 + flat // npix
         k = _mix64(np.uint64(p) * _GOLDEN ^ seed_mix)
-        key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
+        if sampler == SAMPLER_SOBOL:  # hash of (seed, pixel, replicate) over the Sobol index
+            us = np.uint64(s)
+            key = (_mix64(k ^ ((us % _REPLICATES) * _M2 + _GOLDEN)) & _HI32) | ((us // _REPLICATES) & _MASK32)
+        else:
+            key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
         keys[i] = key
         pix[i] = p
-        jx = _uniform(key, 0) + (p % width)
-        jy = _uniform(key, 1) + (p // width)
+        jx = _sample(sampler, key, 0) + (p % width)
+        jy = _sample(sampler, key, 1) + (p // width)
         jit[i, 0] = jx
         jit[i, 1] = jy
         if pinhole:
@@ -316,6 +375,7 @@ class PathConfig(NamedTuple):
     mis_on_hits: bool  #: emission found by BSDF rays is MIS-weighted against light sampling
     continue_diffuse: bool  #: diffuse vertices sample a BSDF ray (false: `direct` with light sampling alone)
     has_area: bool  #: the scene has area lights
+    sampler: int = SAMPLER_SOBOL  #: SAMPLER_SOBOL (render.sobol) or SAMPLER_INDEPENDENT (the hash)
 
 
 @njit(inline="always", **_JIT)
@@ -354,8 +414,8 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
     ngx, ngy, ngz = ng
     b0, b1, b2 = b
     a0, a1, a2 = a
-    k = _pick(cdf, _uniform(key, base))
-    u1, u2 = _uniform(key, base + 1), _uniform(key, base + 2)
+    k = _pick(cdf, _sample(cfg.sampler, key, base))
+    u1, u2 = _sample(cfg.sampler, key, base + 1), _sample(cfg.sampler, key, base + 2)
     if k < n_area:
         ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
         ldelta = False
@@ -383,10 +443,10 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
 
 
 @njit(inline="always", **_JIT)
-def _sample_cosine(key, base, nx, ny, nz):
+def _sample_cosine(sampler, key, base, nx, ny, nz):
     """Cosine-weighted direction about n (dimensions base + 4, base + 5; the polar warp of
     render.sampling.cosine_hemisphere): (wi (3), pdf, its cosine)."""
-    u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
+    u4, u5 = _sample(sampler, key, base + 4), _sample(sampler, key, base + 5)
     r = math.sqrt(u4)
     phi = (2.0 * math.pi) * u5
     c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length
@@ -401,7 +461,7 @@ def _sample_cosine(key, base, nx, ny, nz):
 
 
 @njit(inline="always", **_JIT)
-def _sample_specular(kind, r0, r1, r2, ior, key, base, dx, dy, dz, nx, ny, nz):
+def _sample_specular(kind, r0, r1, r2, ior, sampler, key, base, dx, dy, dz, nx, ny, nz):
     """Mirror (reflectance r) or dielectric (ior; Fresnel lobe choice at dimension base + 3)
     sample for a ray travelling along d, in the local frame of n (render.bsdf.mirror_sample /
     dielectric_sample): (valid, wi (3), weight (3), discrete lobe probability)."""
@@ -429,7 +489,7 @@ def _sample_specular(kind, r0, r1, r2, ior, key, base, dx, dy, dz, nx, ny, nz):
             rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
             F = 0.5 * (rpa * rpa + rpe * rpe)
         eta = ior if woz >= 0.0 else 1.0 / ior
-        if _uniform(key, base + 3) < F:
+        if _sample(sampler, key, base + 3) < F:
             lx, ly, lz = -wox, -woy, woz
             spdf = F
             sc = 1.0
@@ -528,7 +588,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
                                  q_o32, q_d32, q_t32, q_idx, q_val, nq)
             if not cfg.continue_diffuse:
                 continue
-            wx, wy, wz, spdf, cos_s = _sample_cosine(key, base, nx, ny, nz)
+            wx, wy, wz, spdf, cos_s = _sample_cosine(cfg.sampler, key, base, nx, ny, nz)
             w0, w1, w2 = a0, a1, a2
             valid = cos_s > 0.0 and cos_o != 0.0
             delta = False
@@ -542,7 +602,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
                 continue
         else:
             valid, wx, wy, wz, w0, w1, w2, spdf = _sample_specular(kind, albedo[obj, 0], albedo[obj, 1],
-                                                                   albedo[obj, 2], iors[obj], key, base,
+                                                                   albedo[obj, 2], iors[obj], cfg.sampler, key, base,
                                                                    dx, dy, dz, nx, ny, nz)
             delta = True
         if not valid:
@@ -550,7 +610,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         b0, b1, b2 = b0 * w0, b1 * w1, b2 * w2
         if roulette:
             survive = min(1.0, max(max(b0, b1), b2))
-            if not _uniform(key, base + 6) < survive:
+            if not _sample(cfg.sampler, key, base + 6) < survive:
                 continue
             b0, b1, b2 = b0 / survive, b1 / survive, b2 / survive
         if not max(max(b0, b1), b2) > 0.0:
@@ -631,3 +691,16 @@ def accumulate(s1, s2, cnt, pix, L):
             s1[p, c] += x
             s2[p, c] += x * x
         cnt[p] += 1
+
+
+@njit(**_JIT)
+def accumulate_replicates(r1, start, npix, sample0, L):
+    """Per-replicate sums of the Sobol sampler: r1[s mod R, pixel] += L for the paths of flat
+    indices [start, start + len(L)) (flat = (s - sample0) * npix + pixel); r1 (R, npix, 3)."""
+    nrep = r1.shape[0]
+    for i in range(len(L)):
+        flat = start + i
+        p = flat % npix
+        r = (sample0 + flat // npix) % nrep
+        for c in range(3):
+            r1[r, p, c] += L[i, c]

@@ -12,15 +12,17 @@ from dataclasses import dataclass, fields
 
 from .choice import INTEGRATOR_EFFECTS
 
-__all__ = ["RenderSettings", "OPTION_NAMES", "STRATEGIES", "HEURISTICS", "check_strategy", "check_heuristic",
-           "heuristic_exponent", "parse_sample_range"]
+__all__ = ["RenderSettings", "OPTION_NAMES", "STRATEGIES", "HEURISTICS", "SAMPLER_NAMES", "check_strategy",
+           "check_heuristic", "check_sampler", "heuristic_exponent", "parse_sample_range"]
 
 #: next-event strategies: both techniques MIS-weighted, light sampling alone, BSDF sampling alone
 STRATEGIES = ("mis", "light", "bsdf")
 #: MIS heuristics (Veach and Guibas 1995) and the exponent each raises density ratios to
 HEURISTICS = {"power": 2.0, "balance": 1.0}
+#: random number samplers (render.sobol.SAMPLERS): Owen-scrambled Sobol, independent hash
+SAMPLER_NAMES = ("sobol", "independent")
 #: the RenderSettings fields that belong to some integrators' options only (None: not given)
-OPTION_NAMES = ("roulette", "rr_depth", "strategy", "heuristic", "photons_per_pass")
+OPTION_NAMES = ("roulette", "rr_depth", "strategy", "heuristic", "photons_per_pass", "sampler")
 
 
 def check_strategy(strategy: str) -> None:
@@ -31,6 +33,11 @@ def check_strategy(strategy: str) -> None:
 def check_heuristic(heuristic: str) -> None:
     if heuristic not in HEURISTICS:
         raise ValueError(f"heuristic must be power or balance, got {heuristic!r}")
+
+
+def check_sampler(sampler: str) -> None:
+    if sampler not in SAMPLER_NAMES:
+        raise ValueError(f"sampler must be sobol or independent, got {sampler!r}")
 
 
 def heuristic_exponent(heuristic: str) -> float:
@@ -64,6 +71,8 @@ class RenderSettings:
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth (path,
     volpath, bdpt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
+    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol) or
+    "independent" (direct, path).
     """
 
     integrator: str = "auto"
@@ -77,6 +86,7 @@ class RenderSettings:
     threads: int = 2
     batch_paths: int = 1 << 16
     photons_per_pass: int | None = None
+    sampler: str | None = None
 
     def __post_init__(self):
         if self.integrator not in ("auto", *INTEGRATOR_EFFECTS):
@@ -86,6 +96,8 @@ class RenderSettings:
             check_strategy(self.strategy)
         if self.heuristic is not None:
             check_heuristic(self.heuristic)
+        if self.sampler is not None:
+            check_sampler(self.sampler)
         if self.spp < 1 or self.max_depth < 0 or (self.rr_depth or 0) < 0 or self.threads < 1 or self.batch_paths < 1:
             raise ValueError("spp, threads and batch_paths must be >= 1; max_depth, rr_depth >= 0")
         if self.photons_per_pass is not None and self.photons_per_pass < 1:
