@@ -7,9 +7,12 @@ poses' metrics, NeRF ``curve.csv`` files and the ``study`` folder when present) 
 SVG drawn here (no plotting library), styles are inline, there is no script. Sections:
 
 1. at a glance: the best model at the held-out views, its time, the Pareto-optimal models;
-2. models: accuracy (PSNR, SSIM, truth estimate, reference noise share, Z-test) against time;
+2. models: display PSNR, SSIM, ꟻLIP first (whole image and the subject's pixels, the all-black
+   image's row beside), linear PSNR, truth estimates, reference noise share, Z-test, time; how
+   each NeRF stage spent its ``--minutes`` budget;
 3. accuracy versus time: every model on one plot, NeRF training curves, the study's fronts;
-4. side-by-side views: reference (and its noise), each model's render, error map and Z-map;
+4. side-by-side views: reference (and its noise), each model's render, error map, Z-map and
+   ꟻLIP error map;
 5. pose accuracy; 6. per stage what it produced (manifest: time, outputs, headline metrics).
 
 Plots are :mod:`pipeline.plot`'s, shared with the studies.
@@ -150,7 +153,7 @@ h1{margin-bottom:4px} h2{border-bottom:1px solid #ccc;padding-bottom:4px;margin-
 table{border-collapse:collapse;font-size:13px;margin:8px 0}
 th,td{border:1px solid #ddd;padding:3px 8px;text-align:right} th{background:#f3f3f3}
 td:first-child,th:first-child{text-align:left}
-tr.best td{background:#e8f5e9;font-weight:bold} tr.failed td{color:#b00}
+tr.best td{background:#e8f5e9;font-weight:bold} tr.failed td{color:#b00} tr.black td{color:#666;font-style:italic}
 .glance{background:#f6f8fa;border:1px solid #d0d7de;padding:10px 16px;border-radius:6px;font-size:15px}
 .views{overflow-x:auto} .grid{border-collapse:collapse} .grid td{border:none;padding:2px;vertical-align:top;text-align:center}
 .grid img{display:block;image-rendering:pixelated} .cap{font-size:11px;color:#555}
@@ -169,53 +172,104 @@ def _table(header: list[str], rows: list[list], classes: list[str] | None = None
     return f"<table><tr>{h}</tr>{''.join(body)}</table>"
 
 
+def _db(v) -> str:
+    return "–" if v is None else f"{v:.2f} dB"
+
+
 def _glance(models: dict, best: dict | None, ref: dict, front: list[str]) -> str:
     e = html.escape
     if not best:
         return '<p class="glance">No model could be scored.</p>'
     b = models[best["model"]]
-    lines = [f"<b>Best at the held-out views: {e(best['model'])}</b> — PSNR {b['psnr_mean']:.2f} dB, "
-             f"SSIM {b['ssim_mean']:.4f}, {e(_duration(b['end_to_end_s']))} end to end "
+    lines = [f"<b>Best at the held-out views: {e(best['model'])}</b> — display PSNR {_db(b['display_psnr_mean'])} "
+             f"(subject {_db(b.get('display_psnr_subject_mean'))}), SSIM {_fmt(b['display_ssim_mean'], 4)}, "
+             f"ꟻLIP {_fmt(b.get('flip_ldr_mean'))} (HDR {_fmt(b.get('flip_hdr_mean'))}), linear PSNR "
+             f"{_db(b['linear_psnr_mean'])}; {e(_duration(b['end_to_end_s']))} end to end "
              f"({e(_duration(b['time_s']))} for the model stage itself)."]
     cheaper = [n for n in front if n != best["model"] and models[n]["end_to_end_s"] < b["end_to_end_s"]]
     if cheaper:
         lines.append("Cheaper, on the Pareto front: " + "; ".join(
-            f"{e(n)} {models[n]['psnr_mean']:.2f} dB in {e(_duration(models[n]['end_to_end_s']))}" for n in cheaper) + ".")
-    ceil = ref.get("psnr_noise_ceiling_mean")
+            f"{e(n)} {_db(models[n]['display_psnr_mean'])} in {e(_duration(models[n]['end_to_end_s']))}"
+            for n in cheaper) + ".")
+    ceil, dceil = ref.get("psnr_noise_ceiling_mean"), ref.get("display_psnr_noise_ceiling_mean")
     if ceil is not None:
         lines.append(f"The reference ({e(str(ref.get('spp')))} spp, {e(str(ref.get('integrator')))}) limits what can be "
-                     f"measured to about {ceil:.1f} dB PSNR (its own noise); the best model's difference is "
-                     f"{100 * (b.get('noise_share_mean') or 0):.1f}% reference noise.")
-    black = ref.get("psnr_black_mean")
-    if black is not None:
-        lines.append(f"For scale: an empty (black) image scores {black:.1f} dB against this reference.")
+                     f"measured to about {_db(dceil)} display PSNR ({ceil:.1f} dB linear: its own noise); the best "
+                     f"model's linear difference is {100 * (b.get('noise_share_mean') or 0):.1f}% reference noise.")
+    black = ref.get("black") or {}
+    if black.get("display_psnr_mean") is not None:
+        lines.append(f"For scale: an empty (black) image scores display PSNR {_db(black['display_psnr_mean'])} "
+                     f"(subject {_db(black.get('display_psnr_subject_mean'))}), ꟻLIP "
+                     f"{_fmt(black.get('flip_ldr_mean'))}, linear PSNR {_db(black.get('linear_psnr_mean'))} "
+                     "against this reference.")
     return '<div class="glance">' + "<br>".join(lines) + "</div>"
 
 
-def _models_section(models: dict, best: str | None, front: list[str]) -> str:
-    names = sorted(models, key=lambda n: -(models[n]["psnr_mean"] if models[n]["psnr_mean"] is not None else -1e9))
-    header = ["model", "poses", "PSNR dB", "SSIM", "PSNR vs truth (est.) dB", "ref. noise share",
-              "Z-test within noise", "stage time", "end to end", "Pareto"]
-    rows = [[n, models[n]["poses"], models[n]["psnr_mean"], models[n]["ssim_mean"], models[n]["psnr_truth_est_mean"],
-             models[n]["noise_share_mean"], models[n]["z_within_fraction_mean"], _duration(models[n]["time_s"]),
-             _duration(models[n]["end_to_end_s"]), n in front] for n in names]
-    note = ('<p class="note">Means over the held-out views. "PSNR vs truth (est.)" removes the reference\'s own noise '
-            '(mse minus mean reference variance; – when the difference is within that noise). "ref. noise share": the '
-            'fraction of the squared error the reference noise explains. "Z-test within noise": fraction of pixel '
-            'channels within the two-sided per-pixel Z-test. End to end = capture + poses (when estimated) + the model '
-            'stage.</p>')
-    return _table(header, rows, ["best" if n == best else "" for n in names]) + note
+#: the models table's figures (validate's ``<key>_mean``), headline first, and their column titles
+MODEL_COLUMNS = (("display_psnr", "display PSNR dB"), ("display_psnr_subject", "subject display PSNR dB"),
+                 ("display_ssim", "SSIM"), ("display_ssim_subject", "subject SSIM"), ("flip_ldr", "ꟻLIP"),
+                 ("flip_ldr_subject", "subject ꟻLIP"), ("flip_hdr", "HDR-ꟻLIP"), ("linear_psnr", "linear PSNR dB"),
+                 ("linear_psnr_subject", "subject linear PSNR dB"), ("display_psnr_truth_est", "display PSNR vs truth (est.)"),
+                 ("psnr_truth_est", "linear PSNR vs truth (est.)"), ("noise_share", "ref. noise share"),
+                 ("z_within_fraction", "Z-test within noise"))
+
+
+def _models_section(models: dict, best: str | None, front: list[str], ref: dict | None = None) -> str:
+    ref = ref or {}
+    key = lambda n: -(models[n]["display_psnr_mean"] if models[n]["display_psnr_mean"] is not None else -1e9)  # noqa: E731
+    names = sorted(models, key=key)
+    header = ["model", "poses", *[t for _, t in MODEL_COLUMNS], "stage time", "end to end", "Pareto"]
+    rows = [[n, models[n]["poses"], *[models[n].get(f"{k}_mean") for k, _ in MODEL_COLUMNS],
+             _duration(models[n]["time_s"]), _duration(models[n]["end_to_end_s"]), n in front] for n in names]
+    classes = ["best" if n == best else "" for n in names]
+    black = ref.get("black") or {}
+    if black:  # the floor every figure is read against
+        rows.append(["all-black image", "–", *[black.get(f"{k}_mean") for k, _ in MODEL_COLUMNS], "–", "–", "–"])
+        classes.append("black")
+    if ref.get("display_psnr_noise_ceiling_mean") is not None:
+        ceiling = {"display_psnr": ref["display_psnr_noise_ceiling_mean"], "linear_psnr": ref.get("psnr_noise_ceiling_mean")}
+        rows.append(["reference noise ceiling", "–", *[ceiling.get(k) for k, _ in MODEL_COLUMNS], "–", "–", "–"])
+        classes.append("black")
+    note = ('<p class="note">Means over the held-out views. Display figures score the 8-bit sRGB images (as NeRF, '
+            'TensoRF and Instant-NGP report PSNR/SSIM); ꟻLIP is NVIDIA\'s perceptual error (0 identical, 1 largest; '
+            'LDR on the display images, HDR on linear radiance); linear PSNR scores linear radiance clipped to [0, 1]. '
+            '"subject": on the capture\'s subject mask only. "all-black image": what an empty render scores, the floor '
+            'every figure is read against. "vs truth (est.)" removes the reference\'s own noise (the MSE minus the '
+            'noise\'s expected MSE, display: delta method and 8-bit rounding; – when the difference is within that '
+            'noise). "ref. noise share": the fraction of the linear squared error the reference noise explains. '
+            '"Z-test within noise": fraction of pixel channels within the two-sided per-pixel Z-test. End to end = '
+            'capture + poses (when estimated) + the model stage.</p>')
+    return _table(header, rows, classes) + note + _budget_table(models)
+
+
+def _budget_table(models: dict) -> str:
+    """How each NeRF stage spent its ``--minutes`` budget (its metrics.json ``time``), when recorded."""
+    rows = []
+    for n in sorted(models):
+        t = models[n].get("budget")
+        if not t:
+            continue
+        a = t.get("actual", {})
+        rows.append([n, _duration(t.get("budget_s")), _duration(a.get("load_s")), _duration(a.get("train_total_s")),
+                     _duration(a.get("render_s")), _duration(a.get("write_s")), _duration(a.get("stage_s")),
+                     a.get("stopped_by"), t.get("planned", {}).get("eval_factor")])
+    if not rows:
+        return ""
+    return ("<h3>How the NeRF stages spent their --minutes budget</h3>"
+            + _table(["model", "budget", "load", "train", "held-out renders", "write", "stage total", "training stopped by",
+                      "evaluation scale 1/k"], rows))
 
 
 def _plots_section(models: dict, ref: dict, root: Path, validate_dir: Path) -> str:
     parts = []
-    ceil = ref.get("psnr_noise_ceiling_mean")
+    ceil = ref.get("display_psnr_noise_ceiling_mean")
     hl = [(ceil, "reference noise ceiling")] if ceil is not None else []
-    if ref.get("psnr_black_mean") is not None:
-        hl.append((ref["psnr_black_mean"], "empty (black) image"))
-    series = [Series(n, [m["end_to_end_s"]], [m["psnr_mean"]], [n], annotate=True)
-              for n, m in sorted(models.items()) if m["psnr_mean"] is not None and m["end_to_end_s"] > 0]
-    parts.append(svg_plot(series, "end-to-end time (s)", "PSNR at held-out views (dB)",
+    black = (ref.get("black") or {}).get("display_psnr_mean")
+    if black is not None:
+        hl.append((black, "empty (black) image"))
+    series = [Series(n, [m["end_to_end_s"]], [m["display_psnr_mean"]], [n], annotate=True)
+              for n, m in sorted(models.items()) if m["display_psnr_mean"] is not None and m["end_to_end_s"] > 0]
+    parts.append(svg_plot(series, "end-to-end time (s)", "display PSNR at held-out views (dB)",
                           "Every model: accuracy against time", logx=True, hlines=hl))
     curves = []
     for f in sorted(root.glob("nerf/*/curve.csv")):
@@ -250,13 +304,15 @@ def _views_section(root: Path, validate_dir: Path, models: dict, views: list[str
     blocks = []
     for v in views[:max_views]:
         cols = [("reference", _exr_uri(root / "reference" / "linear" / f"{v}.exr", thumb),
-                 _noise_uri(root / "reference" / "variance" / f"{v}.exr", gain, thumb), None)]
+                 _noise_uri(root / "reference" / "variance" / f"{v}.exr", gain, thumb), None, None)]
         for n in sorted(models):
             cols.append((n, _exr_uri(root / n / "renders" / f"{v}.exr", thumb),
                          _file_uri(validate_dir / "errors" / model_subfolder(n) / f"{v}.png", thumb),
-                         _file_uri(validate_dir / "zmaps" / model_subfolder(n) / f"{v}.png", thumb)))
+                         _file_uri(validate_dir / "zmaps" / model_subfolder(n) / f"{v}.png", thumb),
+                         _file_uri(validate_dir / "flip_ldr" / model_subfolder(n) / f"{v}.png", thumb)))
         rows = []
-        for k, what in ((1, "render"), (2, "|error| ×%g (reference: its noise σ, same scale)" % gain), (3, "Z-map")):
+        for k, what in ((1, "render"), (2, "|error| ×%g (reference: its noise σ, same scale)" % gain), (3, "Z-map"),
+                        (4, "ꟻLIP error (LDR)")):
             cells = []
             for c in cols:
                 uri = c[k]
@@ -266,15 +322,25 @@ def _views_section(root: Path, validate_dir: Path, models: dict, views: list[str
                     cells.append("<td></td>")
             rows.append(f'<tr><td class="cap rowcap">{e(what)}</td>{"".join(cells)}</tr>')
         head = "".join(f'<td class="cap">{e(c[0])}'
-                       + (f"<br>{models[c[0]]['per_view'][v]['psnr']:.2f} dB" if c[0] in models
-                          and models[c[0]]["per_view"][v]["psnr"] is not None else "") + "</td>" for c in cols)
+                       + (f"<br>{_view_figures(models[c[0]]['per_view'][v])}" if c[0] in models else "")
+                       + "</td>" for c in cols)
         blocks.append(f"<h3>{e(v)}</h3><div class='views'><table class='grid'><tr><td></td>{head}</tr>{''.join(rows)}</table></div>")
     if len(views) > max_views:
         blocks.append(f'<p class="note">{len(views) - max_views} more held-out views are scored in the tables '
                       f'(validate/errors, validate/zmaps hold all of them).</p>')
-    blocks.append('<p class="note">Z-map: grey where the difference is within the reference\'s noise (darker = '
-                  'smaller), red where it exceeds it.</p>')
+    blocks.append('<p class="note">Captions: display PSNR (whole image, then the subject), LDR-ꟻLIP, linear PSNR. '
+                  'Z-map: grey where the difference is within the reference\'s noise (darker = smaller), red where it '
+                  'exceeds it. ꟻLIP error: magma, black 0 to pale yellow 1 (validate/flip_hdr holds the HDR maps).</p>')
     return "".join(blocks)
+
+
+def _view_figures(m: dict) -> str:
+    """A render's caption: display PSNR (subject), ꟻLIP, linear PSNR of one view."""
+    parts = [f"{m['display_psnr']:.2f} dB" if m.get("display_psnr") is not None else "",
+             f"subject {m['display_psnr_subject']:.2f} dB" if m.get("display_psnr_subject") is not None else "",
+             f"ꟻLIP {m['flip_ldr']:.3f}" if m.get("flip_ldr") is not None else "",
+             f"linear {m['linear_psnr']:.2f} dB" if m.get("linear_psnr") is not None else ""]
+    return html.escape(" · ".join(p for p in parts if p))
 
 
 def _poses_section(poses: dict) -> str:
@@ -354,7 +420,13 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
         raise BadInput(f"{vdir / 'metrics.json'}: 'models' is not an object")
     names = sorted(models)
     mask = pareto_mask([models[n]["end_to_end_s"] for n in names],
-                       [models[n]["psnr_mean"] if models[n]["psnr_mean"] is not None else float("nan") for n in names])
+                       [models[n]["display_psnr_mean"] if models[n]["display_psnr_mean"] is not None else float("nan")
+                        for n in names])
+    for n in names:  # the NeRF stages' time budgets, for the models table
+        f = root / n / "metrics.json"
+        t = read_json(f).get("time") if n.startswith("nerf") and f.is_file() else None
+        if isinstance(t, dict):
+            models[n]["budget"] = t
     front = sorted((n for n, k in zip(names, mask) if k), key=lambda n: models[n]["end_to_end_s"])
     views = list(vman.get("params", {}).get("views", []))
     gain = float(vman.get("params", {}).get("error_gain", 8.0))
@@ -365,7 +437,7 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
             f"reference ({e(str(ref.get('spp')))} spp, {e(str(ref.get('integrator')))}). "
             f"lumigraph {e(str(vman.get('lumigraph', '')))}.</p>",
             _glance(models, best, ref, front),
-            "<h2>Models at the held-out views</h2>", _models_section(models, best and best["model"], front),
+            "<h2>Models at the held-out views</h2>", _models_section(models, best and best["model"], front, ref),
             "<h2>Accuracy against time</h2>", _plots_section(models, ref, root, vdir),
             "<h2>Side by side</h2>", _views_section(root, vdir, models, views, gain, max_views, thumb),
             "<h2>Pose accuracy</h2>", _poses_section(met.get("poses", {})),
