@@ -82,7 +82,7 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               spp: int = typer.Option(64, help="samples per pixel"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
               views: str = typer.Option("auto", help="auto (test views if the scene has them, else its scene camera) | test | all | scene"),
-              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm"),
+              integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),

@@ -17,6 +17,9 @@ registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.
   unbiased); ``spp`` passes in independent groups. Never chosen by ``auto``.
 * ``pssmlt`` (:mod:`.pssmlt`, numpy): Metropolis light transport in primary sample space;
   ``spp`` mutations per pixel in independent chain groups. Never chosen by ``auto``.
+* ``irradiance_cache`` (:mod:`.irradiance_cache`, on path's kernels): Ward's irradiance cache
+  at the first diffuse vertex, direct light per sample; biased (consistent as its error bound
+  goes to 0), ``spp`` samples in independent groups. Never chosen by ``auto``.
 
 Around them: :mod:`.choice` (what each reaches; the effect-driven choice), :mod:`.prepared`
 (:class:`PreparedScene`, built once per scene by :func:`prepare`), :mod:`.settings`
@@ -41,7 +44,7 @@ from ..camera import Camera
 from ..effects import scene_effects
 from ..film import RenderResult, group_ranges, merge_results
 from ..scene import Scene
-from . import bdpt, direct, path, pssmlt, sppm, volpath
+from . import bdpt, direct, irradiance_cache, path, pssmlt, sppm, volpath
 from .choice import INTEGRATOR_EFFECTS, SMALL_SOURCE_SR, choose_integrator
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, parse_sample_range
@@ -61,6 +64,7 @@ INTEGRATORS = {
     "bdpt": bdpt,
     "sppm": sppm,
     "pssmlt": pssmlt,
+    "irradiance_cache": irradiance_cache,
 }
 #: name -> the integrator's options (one hop from here to every option and its documentation)
 INTEGRATOR_OPTIONS = {
@@ -70,6 +74,7 @@ INTEGRATOR_OPTIONS = {
     "bdpt": bdpt.Options,
     "sppm": sppm.Options,
     "pssmlt": pssmlt.Options,
+    "irradiance_cache": irradiance_cache.Options,
 }
 
 

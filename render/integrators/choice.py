@@ -16,6 +16,8 @@ INTEGRATOR_EFFECTS = {
     "sppm": _EYE_PATHS,
     "bdpt": _EYE_PATHS,
     "pssmlt": _EYE_PATHS,
+    # Ward's cache at the first diffuse vertex: camera rays do not follow specular surfaces
+    "irradiance_cache": frozenset({"direct", "shadows", "soft_shadows", "interreflection"}),
 }
 #: integrators that trace light subpaths, and so reach caustics from point/spot/directional lights
 _LIGHT_TRACING = frozenset({"sppm", "bdpt"})
