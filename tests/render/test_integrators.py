@@ -26,6 +26,8 @@ USES = {
     "bdpt": {"roulette", "rr_depth", "heuristic"},
     "sppm": {"photons_per_pass"},
     "pssmlt": {"heuristic"},
+    "irradiance_cache": {"error_bound", "record_rays", "min_spacing", "max_spacing", "cache_direct", "roulette",
+                         "rr_depth", "heuristic"},
 }
 VALUES = {"roulette": False, "rr_depth": 1, "strategy": "light", "heuristic": "balance", "photons_per_pass": 10}
 
@@ -35,7 +37,7 @@ def test_registry_is_one_table_of_modules():
     for name, module in INTEGRATORS.items():
         assert module.__name__ == f"render.integrators.{name}"
         assert INTEGRATOR_OPTIONS[name] is module.Options and callable(module.render_result)
-    assert {n for n, m in INTEGRATORS.items() if getattr(m, "GROUPS", None)} == {"sppm", "pssmlt"}
+    assert {n for n, m in INTEGRATORS.items() if getattr(m, "GROUPS", None)} == {"sppm", "pssmlt", "irradiance_cache"}
 
 
 @pytest.mark.parametrize("name", sorted(USES))
