@@ -15,9 +15,10 @@ __all__ = ["make_intrinsics", "ring_poses", "gantry_poses", "layout_cameras"]
 
 
 def make_intrinsics(spec: IntrinsicsSpec) -> Intrinsics:
-    if spec.fov_y_deg is not None:
+    if spec.fov_y_deg is not None:  # focal from the field of view; a given principal point is kept
         k = Intrinsics.from_fov(spec.width, spec.height, spec.fov_y_deg)
-        return Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy, spec.dist)
+        cx, cy = spec.principal_point()
+        return Intrinsics(k.width, k.height, k.fx, k.fy, cx, cy, spec.dist)
     fy = spec.fy if spec.fy is not None else spec.fx
     cx = spec.cx if spec.cx is not None else spec.width / 2
     cy = spec.cy if spec.cy is not None else spec.height / 2

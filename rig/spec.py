@@ -24,7 +24,7 @@ import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 __all__ = ["SceneSpec", "SpecError", "load_spec", "resolve_scene_path", "resolve_file", "SCENES_DIR", "view_names",
-           "layout_count",
+           "layout_count", "view_sequences",
            "MAX_VIEWS", "MAX_PIXELS_PER_VIEW", "MAX_TEXTURE_SIDE", "MAX_MAGNITUDE", "MAX_NAME_CHARS",
            "MAX_SPEC_BYTES", "MAX_YAML_NODES", "CHARUCO_DICTIONARIES", "SKIMAGE_IMAGES"]
 
@@ -495,8 +495,9 @@ class MediumSpec(_Strict):
 
 # ---------------------------------------------------------------- cameras
 class IntrinsicsSpec(_Strict):
-    """Image size (at most :data:`MAX_PIXELS_PER_VIEW` pixels) and focal length: ``fov_y_deg``,
-    or ``fx`` (``fy``, ``cx``, ``cy`` default to ``fx`` and the image centre)."""
+    """Image size (at most :data:`MAX_PIXELS_PER_VIEW` pixels) and focal length: ``fov_y_deg``
+    (square pixels, ``fy = fx``), or ``fx`` (``fy`` defaults to ``fx``). ``cx``, ``cy`` (pixels,
+    pixel centres at +0.5) default to the image centre with either focal form."""
     width: int = Field(gt=0, le=16384)
     height: int = Field(gt=0, le=16384)
     fov_y_deg: Real | None = Field(None, gt=0, lt=180)
@@ -510,6 +511,8 @@ class IntrinsicsSpec(_Strict):
     def _focal(self):
         if (self.fov_y_deg is None) == (self.fx is None):
             raise ValueError("give exactly one of fov_y_deg, fx (with fy)")
+        if self.fov_y_deg is not None and self.fy is not None:  # would be dropped silently
+            raise ValueError("fy with fov_y_deg: fov_y_deg sets fy; give fx and fy instead")
         if self.width * self.height > MAX_PIXELS_PER_VIEW:
             raise ValueError(f"width x height: {self.width} x {self.height} = {self.width * self.height} pixels "
                              f"per view, at most {MAX_PIXELS_PER_VIEW} (4096 x 4096)")
@@ -517,8 +520,6 @@ class IntrinsicsSpec(_Strict):
 
     def principal_point(self) -> tuple[float, float]:
         """(cx, cy) in pixels, as rig.layouts.make_intrinsics sets them."""
-        if self.fov_y_deg is not None:
-            return self.width / 2, self.height / 2
         return (self.cx if self.cx is not None else self.width / 2,
                 self.cy if self.cy is not None else self.height / 2)
 
@@ -602,6 +603,22 @@ def view_names(layouts: list[LayoutSpec], split: str) -> list[str]:
             start = len(names)
             names.extend(f"{split}_{start + k:03d}" for k in range(layout_count(layout)))
     return names
+
+
+def view_sequences(layouts: list[LayoutSpec], split: str) -> list[dict]:
+    """The capture order of a split's views, one dict per view in :func:`view_names` order:
+    ``sequence`` (``<split>/<layout index>``: one ring, gantry or single view, shot as one
+    uninterrupted sweep, as a video's frames), ``kind`` (ring, gantry, view), ``frame`` (index
+    within the sequence, in shooting order), ``frames`` (the sequence's length) and ``closed``
+    (the sweep returns to its start: a ring's last frame neighbours its first). What a rig
+    records while shooting, no pose: structure from motion may pair views by it."""
+    order = []
+    for i, layout in enumerate(layouts):
+        kind = "ring" if layout.ring is not None else "gantry" if layout.gantry is not None else "view"
+        n = layout_count(layout)
+        order += [{"sequence": f"{split}/{i}", "kind": kind, "frame": k, "frames": n,
+                   "closed": kind == "ring" and n > 2} for k in range(n)]
+    return order
 
 
 class CamerasSpec(_Strict):

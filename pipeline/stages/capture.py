@@ -7,7 +7,7 @@ Layout (DESIGN.md)::
     capture/cameras.json          ground truth, ours    capture/transforms.json     nerfstudio, every split
     capture/transforms_{train,test}.json   Blender/TensoRF split files (file paths without extension)
     capture/colmap/               COLMAP text model     capture/targets.json        calibration boards
-    capture/manifest.json
+    capture/capture_order.json    shooting order (sequence, frame, loop)    capture/manifest.json
 
 Depth EXRs hold z-depth in channel ``Z``. ``transforms.json`` follows nerfstudio's format with the
 splits, masks and depth (:func:`pipeline.export.write_nerfstudio_transforms`);
@@ -29,6 +29,7 @@ from render.camera import Camera
 from render.camera_io import read_cameras_json, write_blender_transforms_json, write_cameras_json, write_colmap_text
 from render.image_io import exr_size, png_size, write_depth_exr, write_exr, write_png, write_preview
 from rig.build import RigScene
+from rig.spec import view_sequences
 from rig.capture import (CAPTURE_SPP, CapturedView, CapturePlan, capture_list, check_capture, finish_view,
                          plan_capture, render_ideal, sensor_config)
 
@@ -94,6 +95,19 @@ def check_capture_folder(folder: Path, need: tuple[str, ...] = ("images", "linea
             if (w, h) != (k.width, k.height):
                 raise BadInput(f"{p}: image is {w}x{h} but cameras.json says {k.width}x{k.height} for view {cam.name!r}")
     return cameras, splits
+
+
+def capture_order(rig: RigScene, splits: tuple[str, ...]) -> dict:
+    """``capture_order.json``: the order the rig shot the views in (:func:`rig.spec.view_sequences`:
+    sequence, frame index within it, closed loop), plus ``time``, the view's index in the whole
+    capture. Pose estimation pairs views by it, as a video's frame order, never by file name."""
+    views, time = [], 0
+    for split in splits:
+        names = [c.name for c in rig.cameras.get(split, [])]
+        for name, seq in zip(names, view_sequences(getattr(rig.spec.cameras, split), split), strict=True):
+            views.append({"name": name, "split": split, **seq, "time": time})
+            time += 1
+    return {"views": views}
 
 
 def capture_view(scene, scene_key: str, plan: CapturePlan, sensor, seed: int, threads: int, gl_threads: int | None,
@@ -165,6 +179,7 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
             except ValueError as exc:  # intrinsics the convention cannot state: transforms.json holds them
                 manifest.params.setdefault("blender_split_files", str(exc).split(": ", 1)[-1])
         write_json(tmp / "targets.json", rig.targets)
+        write_json(tmp / "capture_order.json", capture_order(rig, splits))
         manifest.metrics = {"views": n_views, **{f"views_{s}": split_of.count(s) for s in splits},
                             "engine": eng.name, "workers": eng.workers}
         result = manifest.write(tmp)
