@@ -109,7 +109,8 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
           self_calibrate: bool = typer.Option(False, help="refine intrinsics (and distortion) too"),
           image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
           max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
-          matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | sequential"),
+          matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | capture_order | sequential"),
+          mapper: str = typer.Option("auto", help="COLMAP: auto | incremental | global"),
           quiet: bool = QUIET,
           overwrite: bool = OVERWRITE):
     """Estimate camera poses from a capture's images and score them against its ground truth."""

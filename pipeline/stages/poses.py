@@ -36,13 +36,22 @@ ever visible, a folded turntable circle, a pose error above the gate). Both prom
 
 Bad input (no capture folder, no finished capture's ``manifest.json``, no or a malformed
 ``cameras.json`` (NaN poses, view names that are not plain file stems), missing / unreadable /
-mixed-size images, no ``targets.json`` for ChArUco) raises BadInput before anything is written:
-a failure folder records a method's finding on a valid capture, never damaged input.
+mixed-size images, duplicate views (identical pixels), a view that sees only a uniform
+background, a malformed ``capture_order.json``, no ``targets.json`` for ChArUco) raises BadInput
+naming the views before anything is written: a failure folder records a method's finding on a
+valid capture, never damaged input.
+
+COLMAP pairs views by the capture's shooting order (``capture_order.json``: ring, frame index,
+loop; :mod:`recon.poses.pairing`) above ``ColmapConfig.exhaustive_max_images`` views. Its work
+folder (database, resized images: ~0.5 GB at 1000 views) lives inside the stage's atomic
+partial folder, so an interrupted run leaves nothing in the system's temp folder; a killed
+one leaves it in the ``.<name>.partial-<pid>-*`` folder that the next run of the stage removes.
 """
 from __future__ import annotations
 
+import hashlib
 import json
-import tempfile
+import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -50,8 +59,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, estimate_charuco,
-                         estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
+from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, ViewOrder,
+                         estimate_charuco, estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
 from render.camera import Camera
 from render.camera_io import write_blender_transforms_json, write_cameras_json, write_colmap_text
 
@@ -92,13 +101,15 @@ class PosesConfig:
 @dataclass
 class Capture:
     """A validated capture: ground-truth cameras and splits in file order, image paths by name,
-    and the calibration targets (empty dict when the capture has no targets.json)."""
+    the calibration targets (empty dict when the capture has no targets.json) and the shooting
+    order (None when the capture has no capture_order.json, e.g. one made before it existed)."""
 
     folder: Path
     cameras: list[Camera]
     splits: list[str]
     images: dict[str, Path]
     targets: dict
+    order: list[ViewOrder] | None = None
 
 
 class PoseFailure(Exception):
@@ -115,13 +126,23 @@ def load_capture(folder: Path, need_targets: bool = False) -> Capture:
     naming the file) on any problem."""
     folder = Path(folder)
     cameras, splits = check_capture_folder(folder, need=("images",))
-    images = {}
+    images, by_content, blank = {}, {}, []
     for c in cameras:
         p = folder / "images" / f"{c.name}.png"
         img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if img is None or img.dtype != np.uint8:
             raise BadInput(f"{p}: unreadable image (not an 8-bit PNG)")
         images[c.name] = p
+        by_content.setdefault(hashlib.sha256(img.tobytes()).digest(), []).append(c.name)
+        if _background_only(img):
+            blank.append(c.name)
+    duplicates = [names for names in by_content.values() if len(names) > 1]
+    if duplicates:
+        groups = "; ".join(" = ".join(g) for g in duplicates[:5]) + ("; ..." if len(duplicates) > 5 else "")
+        raise BadInput(f"{folder / 'images'}: duplicate views (identical images): {groups}")
+    if blank:
+        raise BadInput(f"{folder / 'images'}: {len(blank)} view(s) see only a uniform background "
+                       f"(nothing to match): {', '.join(blank[:10])}{', ...' if len(blank) > 10 else ''}")
     targets = {}
     t_file = folder / "targets.json"
     if t_file.is_file():
@@ -133,7 +154,44 @@ def load_capture(folder: Path, need_targets: bool = False) -> Capture:
             raise BadInput(f"{t_file}: expected an object of boards")
     elif need_targets:
         raise BadInput(f"{t_file}: no calibration targets in the capture (needed by --method charuco)")
-    return Capture(folder, cameras, splits, images, targets)
+    return Capture(folder, cameras, splits, images, targets, _read_order(folder / "capture_order.json", cameras))
+
+
+#: downsampling factor and contrast (8-bit levels) below which a view counts as background only
+BLANK_BLOCK, BLANK_CONTRAST = 8, 16
+
+
+def _background_only(img: np.ndarray) -> bool:
+    """True when ``img`` ((H, W) or (H, W, C) uint8) is one colour up to noise: the range of its
+    ``BLANK_BLOCK``-pixel block means is below ``BLANK_CONTRAST`` levels in every channel. Block
+    means divide sensor noise by 8 (a 3-level sigma leaves a range under 4 levels over ~20,000
+    blocks), while any subject in view spans tens of levels."""
+    h, w = img.shape[:2]
+    small = cv2.resize(img, (max(w // BLANK_BLOCK, 1), max(h // BLANK_BLOCK, 1)), interpolation=cv2.INTER_AREA)
+    small = small.reshape(small.shape[0] * small.shape[1], -1)
+    return bool((small.max(axis=0).astype(int) - small.min(axis=0)).max() < BLANK_CONTRAST)
+
+
+def _read_order(path: Path, cameras: list[Camera]) -> list[ViewOrder] | None:
+    """The capture's shooting order (pipeline.stages.capture.capture_order) for ``cameras``;
+    None when the file is absent. BadInput, one line naming the file and field, when malformed or
+    not covering every view."""
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+        views = [ViewOrder(str(v["name"]), str(v["sequence"]), int(v["frame"]), int(v["frames"]), bool(v["closed"]),
+                           int(v["time"])) for v in doc["views"]]
+    except json.JSONDecodeError as exc:
+        raise BadInput(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno})") from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BadInput(f"{path}: field 'views': malformed entry ({str(exc).splitlines()[0]})") from None
+    known = {v.name for v in views}
+    missing = [c.name for c in cameras if c.name not in known]
+    if missing or len(known) != len(views):
+        what = f"view {missing[0]!r} missing" if missing else "a view listed twice"
+        raise BadInput(f"{path}: field 'views': {what}")
+    return views
 
 
 def check_poses(poses_dir: Path, capture_dir: Path, cameras: list[Camera], splits: list[str]) -> list[Camera]:
@@ -179,6 +237,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
                    workdir: Path | None = None) -> tuple[list[Camera], dict, object]:
     """Run one method on a loaded capture and score it.
 
+    workdir: COLMAP's scratch folder (required by colmap; removed when done).
     Returns ``(cameras, metrics, reconstruction)``: registered cameras in the ground-truth
     frame (camera-to-world, OpenCV axes; capture order), the flat metrics dict with
     ``status = "ok"`` and, for COLMAP, the aligned ``pycolmap.Reconstruction`` (else None).
@@ -197,15 +256,20 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
         cfg = config.colmap
         metrics.update(known_intrinsics=cfg.known_intrinsics, image_scale=cfg.image_scale,
                        max_features=cfg.max_features)
-        with tempfile.TemporaryDirectory(prefix="lumigraph-colmap-") as tmp:
-            try:
-                res = estimate_colmap(cap.images, k_true, Path(workdir or tmp), cfg)
-            except ReconstructionError as exc:
-                metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
-                raise PoseFailure(str(exc), metrics) from None
+        if workdir is None:
+            raise ValueError("the colmap method needs a work folder")
+        try:
+            res = estimate_colmap(cap.images, k_true, Path(workdir), cfg, cap.order)
+        except ReconstructionError as exc:
+            metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
+            raise PoseFailure(str(exc), metrics) from None
+        finally:
+            shutil.rmtree(workdir, ignore_errors=True)
         cams, rec = res.cameras, res.reconstruction
         extra = {"reprojection_error_px": res.reprojection_error_px, "points": int(len(res.points)),
-                 "models": res.num_models, "mean_track_length": res.mean_track_length}
+                 "models": res.num_models, "mean_track_length": res.mean_track_length, "matcher": res.matcher,
+                 "mapper": res.mapper, "pairs": res.pairs,
+                 **{f"{step}_time_s": t for step, t in res.times_s.items()}}
     else:
         cfg = config.charuco
         metrics.update(calibrate=cfg.calibrate)
@@ -301,25 +365,34 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
     manifest.add_input(cap.folder / "images")
     if method == "charuco":
         manifest.add_input(cap.folder / "targets.json")
-    with progress_bar(quiet) as bar:
+    failure = None
+    # the work folder lives in the partial folder: no COLMAP leftovers outside it (module docstring)
+    with progress_bar(quiet) as bar, atomic_stage(out, "poses", overwrite) as tmp:
         task = bar.add_task(f"poses {method}", total=1, info=f"{len(cap.cameras)} views")
         try:
-            cams, metrics, rec = estimate_poses(cap, method, config)
+            cams, metrics, rec = estimate_poses(cap, method, config, workdir=tmp / "colmap-work")
         except PoseFailure as fail:
+            failure = fail.reason
             metrics = {**fail.metrics, "status": "failed", "reason": fail.reason,
                        "wall_time_s": round(time.time() - manifest.started, 3)}
-            with atomic_stage(out, "poses", overwrite) as tmp:
-                write_json(tmp / "metrics.json", metrics)
-            raise BadInput(f"poses {method}: {fail.reason} (see {out / 'metrics.json'})") from None
+            write_json(tmp / "metrics.json", metrics)
         bar.advance(task)
-    metrics["wall_time_s"] = round(time.time() - manifest.started, 3)
-    with atomic_stage(out, "poses", overwrite) as tmp:
-        _write_cameras(tmp, cap, cams, out)
-        if rec is not None:
-            (tmp / "sparse").mkdir()
-            rec.write(str(tmp / "sparse"))
-        write_json(tmp / "metrics.json", metrics)
-        manifest.metrics = {k: v for k, v in metrics.items() if isinstance(v, (int, float, str, bool))}
-        result = manifest.write(tmp)
+        if failure is None:
+            metrics["wall_time_s"] = round(time.time() - manifest.started, 3)
+            result = _write_outputs(tmp, cap, cams, rec, metrics, manifest, out)
+    if failure is not None:
+        raise BadInput(f"poses {method}: {failure} (see {out / 'metrics.json'})")
     return result
+
+
+def _write_outputs(tmp: Path, cap: Capture, cams: list[Camera], rec, metrics: dict, manifest: Manifest,
+                   out: Path) -> dict:
+    """The finished folder's files into the partial folder ``tmp``; returns the manifest."""
+    _write_cameras(tmp, cap, cams, out)
+    if rec is not None:
+        (tmp / "sparse").mkdir()
+        rec.write(str(tmp / "sparse"))
+    write_json(tmp / "metrics.json", metrics)
+    manifest.metrics = {k: v for k, v in metrics.items() if isinstance(v, (int, float, str, bool))}
+    return manifest.write(tmp)
 

@@ -6,8 +6,9 @@ from .align import (Similarity, apply_similarity, intrinsics_error, rotation_ang
                     score_cameras, turntable_self_check, umeyama)
 from .charuco import BoardNotFound, CharucoConfig, CharucoResult, detect_board, estimate_charuco, make_board
 from .colmap import ColmapConfig, ColmapResult, ReconstructionError, estimate_colmap
+from .pairing import ViewOrder, capture_order_pairs
 
 __all__ = ["Similarity", "umeyama", "apply_similarity", "rotation_angles_deg", "scene_scale", "score_cameras",
            "intrinsics_error", "turntable_self_check", "BoardNotFound", "CharucoConfig", "CharucoResult",
            "detect_board", "estimate_charuco", "make_board", "ColmapConfig", "ColmapResult",
-           "ReconstructionError", "estimate_colmap"]
+           "ReconstructionError", "estimate_colmap", "ViewOrder", "capture_order_pairs"]

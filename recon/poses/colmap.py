@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import hashlib
 import shutil
-from collections.abc import Mapping
+import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -27,6 +28,8 @@ import cv2
 import numpy as np
 
 from render.camera import Camera, Intrinsics
+
+from .pairing import ViewOrder, capture_order_pairs
 
 __all__ = ["ColmapConfig", "ColmapResult", "ReconstructionError", "estimate_colmap"]
 
@@ -42,10 +45,18 @@ class ColmapConfig:
     known_intrinsics: PINHOLE with fixed calibration (True) or self-calibrated SIMPLE_RADIAL (False).
     image_scale: resize factor applied before feature extraction (1 = capture resolution).
     max_features: SIFT features per image.
-    matcher: ``exhaustive`` (every pair), ``sequential`` (neighbours in name order, with loop
-        detection off: turntable views are ordered), or ``auto`` (exhaustive up to
-        ``exhaustive_max_images`` images).
-    sequential_overlap: neighbours matched per image by the sequential matcher.
+    matcher: ``exhaustive`` (every pair), ``capture_order`` (the shooting order's pairs,
+        :mod:`recon.poses.pairing`: neighbours within each ring with loop closure, same-phase
+        links between rings; needs the order), ``sequential`` (neighbours in name order, loop
+        detection off), or ``auto``: exhaustive up to ``exhaustive_max_images`` images, then
+        capture_order when the order is known, else sequential.
+    sequential_overlap: neighbours matched ahead per image by the sequential and capture-order
+        matchers (the capture-order window).
+    link_window: half-width of the capture-order links between sequences (frames either side of
+        the same phase).
+    mapper: ``incremental`` (COLMAP's incremental mapper), ``global`` (COLMAP 4's global mapper,
+        GLOMAP: rotation averaging, global positioning, one bundle adjustment), or ``auto``:
+        global from ``global_min_images`` images on.
     final_ba_iterations: iterations of one extra global bundle adjustment with tight tolerances
         after mapping (0 skips it).
     seed: COLMAP's RANSAC seeds (two-view verification, mapper, triangulation) and its global PRNG.
@@ -60,9 +71,12 @@ class ColmapConfig:
     known_intrinsics: bool = True
     image_scale: float = 1.0
     max_features: int = 8192
-    matcher: Literal["auto", "exhaustive", "sequential"] = "auto"
+    matcher: Literal["auto", "exhaustive", "capture_order", "sequential"] = "auto"
     exhaustive_max_images: int = 150
     sequential_overlap: int = 12
+    link_window: int = 1
+    mapper: Literal["auto", "incremental", "global"] = "auto"
+    global_min_images: int = 150
     refine_principal_point: bool = False
     final_ba_iterations: int = 100
     seed: int = 0
@@ -73,8 +87,12 @@ class ColmapConfig:
             raise ValueError(f"image_scale must be in [0.05, 4], got {self.image_scale}")
         if self.max_features < 64:
             raise ValueError(f"max_features must be >= 64, got {self.max_features}")
-        if self.matcher not in ("auto", "exhaustive", "sequential"):
-            raise ValueError(f"matcher must be auto, exhaustive or sequential, got {self.matcher!r}")
+        if self.matcher not in ("auto", "exhaustive", "capture_order", "sequential"):
+            raise ValueError(f"matcher must be auto, exhaustive, capture_order or sequential, got {self.matcher!r}")
+        if self.mapper not in ("auto", "incremental", "global"):
+            raise ValueError(f"mapper must be auto, incremental or global, got {self.mapper!r}")
+        if self.sequential_overlap < 1 or self.link_window < 0:
+            raise ValueError("sequential_overlap must be >= 1 and link_window >= 0")
 
 
 @dataclass
@@ -83,7 +101,9 @@ class ColmapResult:
     axes, named by image stem), the names COLMAP could not register, and model statistics.
 
     points: (P, 3) float64 sparse points in COLMAP's frame. reprojection_error_px is the mean
-    over all observations, in input-resolution pixels.
+    over all observations, in input-resolution pixels. matcher/mapper: what ran (``auto``
+    resolved); pairs: image pairs matched; times_s: wall seconds of ``extract``, ``match``,
+    ``map`` (the mapper and the final bundle adjustment).
     """
 
     cameras: list[Camera]
@@ -93,6 +113,10 @@ class ColmapResult:
     num_models: int
     mean_track_length: float
     reconstruction: object = field(repr=False)  # pycolmap.Reconstruction, in COLMAP's frame
+    matcher: str = ""
+    mapper: str = ""
+    pairs: int = 0
+    times_s: dict = field(default_factory=dict)
 
 
 def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path) -> list[str]:
@@ -167,13 +191,15 @@ def _diagnose(db: Path) -> str:
 
 
 def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
-                    config: ColmapConfig = ColmapConfig()) -> ColmapResult:
-    """Run feature extraction, matching and incremental mapping on ``images``.
+                    config: ColmapConfig = ColmapConfig(), order: Sequence[ViewOrder] | None = None) -> ColmapResult:
+    """Run feature extraction, matching and mapping on ``images``.
 
     images: view name (file stem) -> image file (8-bit PNG/JPEG), all one size.
     intrinsics: the true calibration at the images' resolution; required when
         ``config.known_intrinsics``, else ignored. workdir: an empty scratch folder (database,
-        resized images, raw models). Returns a :class:`ColmapResult` for the largest model.
+        resized images, raw models). order: the views' shooting order (the capture's
+        ``capture_order.json``), needed by the capture_order matcher; views it lacks are refused.
+        Returns a :class:`ColmapResult` for the largest model.
     Raises :class:`ReconstructionError` when COLMAP builds no model (e.g. a textureless
     object: no features survive matching, the mapper returns nothing).
     """
@@ -182,13 +208,29 @@ def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, w
     level = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = max(level, 2)  # COLMAP's INFO/WARNING chatter off; errors stay
     try:
-        return _estimate(images, intrinsics, workdir, config)
+        return _estimate(images, intrinsics, workdir, config, order)
     finally:
         pycolmap.logging.minloglevel = level
 
 
+def resolve_matcher(config: ColmapConfig, n_images: int, have_order: bool) -> str:
+    """The matcher ``auto`` stands for (ColmapConfig.matcher)."""
+    if config.matcher != "auto":
+        return config.matcher
+    if n_images <= config.exhaustive_max_images:
+        return "exhaustive"
+    return "capture_order" if have_order else "sequential"
+
+
+def resolve_mapper(config: ColmapConfig, n_images: int) -> str:
+    """The mapper ``auto`` stands for (ColmapConfig.mapper)."""
+    if config.mapper != "auto":
+        return config.mapper
+    return "global" if n_images >= config.global_min_images else "incremental"
+
+
 def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
-              config: ColmapConfig) -> ColmapResult:
+              config: ColmapConfig, order: Sequence[ViewOrder] | None) -> ColmapResult:
     import pycolmap
 
     if len(images) < 2:
@@ -197,8 +239,19 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         raise ReconstructionError(f"all {len(images)} images are identical: no camera motion to reconstruct from")
     if config.known_intrinsics and intrinsics is None:
         raise ValueError("known_intrinsics needs the intrinsics")
+    matcher = resolve_matcher(config, len(images), order is not None)
+    mapper = resolve_mapper(config, len(images))
+    if matcher == "capture_order":
+        if order is None:
+            raise ValueError("the capture_order matcher needs the capture order")
+        known = {v.name for v in order}
+        missing = [n for n in images if n not in known]
+        if missing:
+            raise ValueError(f"capture order lacks {len(missing)} view(s), e.g. {missing[0]!r}")
     workdir = Path(workdir)
     image_dir, db = workdir / "images", workdir / "database.db"
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
     first = next(iter(images.values()))
     width, height = _image_size(Path(first))
     names = _prepare_images(images, config.image_scale, image_dir)
@@ -223,13 +276,25 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
 
+    times["extract"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = config.num_threads
     matching.use_gpu = False
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = config.seed
-    use_seq = config.matcher == "sequential" or (config.matcher == "auto" and len(names) > config.exhaustive_max_images)
-    if use_seq:
+    if matcher == "capture_order":
+        suffix = {Path(n).stem: Path(n).suffix for n in names}
+        wanted = [v for v in order if v.name in suffix]
+        pairs = capture_order_pairs(wanted, config.sequential_overlap, config.link_window)
+        pair_file = workdir / "pairs.txt"
+        with open(pair_file, "w") as f:
+            f.writelines(f"{a}{suffix[a]} {b}{suffix[b]}\n" for a, b in pairs)
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = str(pair_file)
+        pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
+                                   verification_options=verification, device=pycolmap.Device.cpu)
+    elif matcher == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = config.sequential_overlap
         pycolmap.match_sequential(db, matching_options=matching, pairing_options=pairing,
@@ -237,21 +302,37 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     else:
         pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
                                   device=pycolmap.Device.cpu)
+    if matcher == "capture_order":
+        n_pairs = len(pairs)
+    elif matcher == "exhaustive":
+        n_pairs = len(names) * (len(names) - 1) // 2
+    else:
+        database = pycolmap.Database.open(str(db))
+        try:
+            n_pairs = int(database.num_matched_image_pairs())
+        finally:
+            database.close()
+    times["match"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
 
-    opts = pycolmap.IncrementalPipelineOptions()
-    opts.random_seed = config.seed
-    opts.mapper.random_seed = config.seed
-    opts.triangulation.random_seed = config.seed
-    opts.num_threads = 1  # scheduling-independent (see ColmapConfig)
-    opts.mapper.num_threads = 1
-    opts.min_model_size = min(10, len(names))
     fixed = config.known_intrinsics
-    opts.ba_refine_focal_length = not fixed
-    opts.ba_refine_extra_params = not fixed
-    opts.ba_refine_principal_point = (not fixed) and config.refine_principal_point
-    opts.mapper.abs_pose_refine_focal_length = not fixed
-    opts.mapper.abs_pose_refine_extra_params = not fixed
-    models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
+    (workdir / "sparse").mkdir(exist_ok=True)
+    if mapper == "global":
+        models = pycolmap.global_mapping(db, image_dir, workdir / "sparse", options=_global_options(config, len(names)))
+    else:
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.random_seed = config.seed
+        opts.mapper.random_seed = config.seed
+        opts.triangulation.random_seed = config.seed
+        opts.num_threads = 1  # scheduling-independent (see ColmapConfig)
+        opts.mapper.num_threads = 1
+        opts.min_model_size = min(10, len(names))
+        opts.ba_refine_focal_length = not fixed
+        opts.ba_refine_extra_params = not fixed
+        opts.ba_refine_principal_point = (not fixed) and config.refine_principal_point
+        opts.mapper.abs_pose_refine_focal_length = not fixed
+        opts.mapper.abs_pose_refine_extra_params = not fixed
+        models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
     models = {i: m for i, m in (models or {}).items() if m.num_reg_images() > 0}
     if not models:
         raise ReconstructionError(f"COLMAP built no model from {len(names)} images: {_diagnose(db)}")
@@ -270,6 +351,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         so.num_threads = 1
         pycolmap.bundle_adjustment(rec, ba)
 
+    times["map"] = time.perf_counter() - t0
     cameras, registered = [], set()
     for img in rec.images.values():
         if not img.has_pose:
@@ -289,4 +371,30 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     return ColmapResult(cameras=cameras, unregistered=[n for n in images if n not in registered],
                         reprojection_error_px=err if np.isfinite(err) else 0.0, points=points,
                         num_models=len(models), mean_track_length=float(rec.compute_mean_track_length())
-                        if len(points) else 0.0, reconstruction=rec)
+                        if len(points) else 0.0, reconstruction=rec, matcher=matcher, mapper=mapper,
+                        pairs=n_pairs, times_s={k: round(v, 3) for k, v in times.items()})
+
+
+def _global_options(config: ColmapConfig, n_images: int):
+    """COLMAP's global mapper (GLOMAP) seeded, on one thread (scheduling-independent, as the
+    incremental mapper), intrinsics refined only when self-calibrating."""
+    import pycolmap
+
+    opts = pycolmap.GlobalPipelineOptions()
+    opts.random_seed = config.seed
+    opts.num_threads = 1
+    opts.min_model_size = min(10, n_images)
+    m = opts.mapper
+    m.random_seed = config.seed
+    m.num_threads = 1
+    m.rotation_averaging.random_seed = config.seed
+    m.global_positioning.random_seed = config.seed
+    m.global_positioning.use_gpu = False
+    fixed = config.known_intrinsics
+    ba = m.bundle_adjustment
+    ba.refine_focal_length = not fixed
+    ba.refine_extra_params = not fixed
+    ba.refine_principal_point = (not fixed) and config.refine_principal_point
+    ba.ceres.use_gpu = False
+    ba.ceres.solver_options.num_threads = 1
+    return opts
