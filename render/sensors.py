@@ -226,7 +226,8 @@ def unbiased_irradiance(scene: Scene | None, sensors: SensorArray, samples: int,
 
     scene: the scene (or None with ``prepared``). max_depth: scattering events, the sensor being
     the first. The path tracer's defaults otherwise (MIS with the power heuristic, roulette from
-    vertex rr_depth). RNG: the path tracer's hash keyed by (seed, sensor index, sample index), so
+    vertex rr_depth). RNG: the path tracer's independent sampler, a hash keyed by (seed, sensor
+    index, sample index) (i.i.d. samples, so the variance is the sample variance), so
     estimates of disjoint ranges merge into exactly the estimate of their union. Returns an
     :class:`IrradianceEstimate` (E = pi x the white sensor's radiance, per sample).
     """
@@ -237,7 +238,10 @@ def unbiased_irradiance(scene: Scene | None, sensors: SensorArray, samples: int,
     ps = prepared if prepared is not None else prepare(scene)
     if ps.mats.has_glossy:
         raise ValueError("sensors: the unbiased estimator runs the path kernels, which cannot shade GGX materials")
-    cfg = path_config(ps, max_depth, "mis", "power", roulette, rr_depth, direct=False, caustics=True)
+    # independent hash uniforms (not the Sobol sampler): the samples must be i.i.d. for the
+    # sample variance and the interval to mean what they say
+    cfg = path_config(ps, max_depth, "mis", "power", roulette, rr_depth, direct=False, caustics=True,
+                      sampler="independent")
     ks, prim0 = _sensor_kernel_scene(kernel_scene_of(ps), sensors)
     n_sensors = len(sensors)
     total = samples * n_sensors
