@@ -1,17 +1,31 @@
-"""Pose accuracy versus time: method x image scale x feature count, one command.
+"""Pose accuracy versus time: method x image scale x feature count, and COLMAP's cost growth with
+the number of views, one command.
 
     .venv/bin/python -m bench.bench_poses [--capture DIR] [--scales 0.5,1] [--features 1024,4096,8192]
+    .venv/bin/python -m bench.bench_poses --views 56,224,1000 [--configs auto,capture_order+incremental]
 
-Without ``--capture`` the default scene is captured into a temporary folder first. Writes
-``bench/results/bench_poses.csv`` (one row per cell) and ``bench/results/bench_poses.json``
-(the rows plus each cell's time as a ratio to the ChArUco full-scale baseline of the same run),
-and prints the table. Each cell runs once (COLMAP cells take tens of seconds on 2 cores).
+Study (``--views`` empty): without ``--capture`` the default scene is captured into a temporary
+folder first. Writes ``bench/results/bench_poses.csv`` (one row per cell) and
+``bench/results/bench_poses.json`` (the rows plus each cell's time as a ratio to the ChArUco
+full-scale baseline of the same run), and prints the table. Each cell runs once (COLMAP cells
+take tens of seconds on 2 cores).
+
+Scale (``--views``, the default 56,224,1000): the default scene at 1280x960 with the layouts of
+:data:`LAYOUTS` (56: its own rings of 24 + 24 and 8 held out; 224: 96 + 96 and 32; 1000: three
+train rings of 320 at 20, 35 and 50 deg and 40 held out), captured, then posed by the ``poses``
+stage (COLMAP, known intrinsics) with each of ``--configs`` (``auto`` = the stage's defaults, or
+``MATCHER+MAPPER``). Writes ``bench/results/bench_poses_scale.json``: per run the extract /
+match / map seconds, pairs, registered views and rotation error, with the 1-minute load
+average before and after (the machine is shared: times are only comparable within a run).
 """
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
+import os
 import tempfile
+import time
 from pathlib import Path
 
 from bench.common import RESULTS_DIR, write_result
@@ -23,7 +37,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--scales", default="0.5,1")
     ap.add_argument("--features", default="1024,4096,8192")
     ap.add_argument("--methods", default="charuco,colmap")
+    ap.add_argument("--views", default="56,224,1000", help="scale benchmark view counts ('' runs the study)")
+    ap.add_argument("--configs", default="auto", help="scale benchmark: auto or MATCHER+MAPPER, comma-separated")
+    ap.add_argument("--keep", type=Path, default=None, help="scale benchmark: keep the captures under this folder")
     a = ap.parse_args(argv)
+    if a.views:
+        return scale_benchmark([int(v) for v in a.views.split(",")], a.configs.split(","), a.keep)
     from pipeline.stages.poses import load_capture
     from recon.poses.study import STUDY_COLUMNS, pose_study
 
@@ -55,6 +74,78 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['wall_time_s']:>7.1f} {r['registered']:>3}/{r['views']:<2} {rot:>9} {rmax:>8}")
     write_result("bench_poses", {"capture": str(a.capture or "default scene, fresh capture"), "rows": rows,
                                  "note": "one run per cell; times include image I/O; shared 2-core machine"})
+
+
+#: view count -> (train rings as (elevation deg, count), held-out ring (elevation deg, count))
+LAYOUTS = {56: ([(25, 24), (50, 24)], (37.5, 8)), 224: ([(25, 96), (50, 96)], (37.5, 32)),
+           1000: ([(20, 320), (35, 320), (50, 320)], (27.5, 40))}
+
+
+def scaled_turntable(views: int) -> dict:
+    """The default scene's spec with the camera layout of ``LAYOUTS[views]`` (same distance,
+    target and size; each ring offset by half a step from the previous one, as the default's)."""
+    import yaml
+
+    from rig.spec import SCENES_DIR
+
+    spec = yaml.safe_load((SCENES_DIR / "turntable.yaml").read_text())
+    if views == 56:  # the default scene as it is
+        return spec
+    train, (test_el, test_n) = LAYOUTS[views]
+    ring = {"distance": 1.1, "target": [0, 0, 0.05]}
+    spec["name"] = f"turntable_{views}"
+    spec["cameras"]["train"] = [{"ring": {**ring, "elevation_deg": el, "count": n,
+                                          "azimuth_offset_deg": i * 180 / n}} for i, (el, n) in enumerate(train)]
+    spec["cameras"]["test"] = [{"ring": {**ring, "elevation_deg": test_el, "count": test_n,
+                                         "azimuth_offset_deg": 90 / test_n}}]
+    return copy.deepcopy(spec)
+
+
+def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | None) -> None:
+    import yaml
+
+    from pipeline.artifacts import BadInput
+    from pipeline.cli import main as cli
+    from pipeline.stages.poses import PosesConfig, run_poses
+    from recon.poses import ColmapConfig
+
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-poses-scale-") as tmp:
+        root = keep or Path(tmp)
+        for views in view_counts:
+            folder = root / f"views_{views}"
+            folder.mkdir(parents=True, exist_ok=True)
+            scene = folder / "scene.yaml"
+            scene.write_text(yaml.safe_dump(scaled_turntable(views), sort_keys=False))
+            t0 = time.perf_counter()
+            if not (folder / "capture" / "manifest.json").is_file():
+                if cli(["capture", str(scene), "--out", str(folder / "capture"), "--quiet"]) != 0:
+                    raise SystemExit(f"capture of {views} views failed")
+            capture_s = time.perf_counter() - t0
+            for cfg_name in configs:
+                matcher, mapper = ("auto", "auto") if cfg_name == "auto" else cfg_name.split("+")
+                cfg = PosesConfig(colmap=ColmapConfig(matcher=matcher, mapper=mapper))
+                load_before = os.getloadavg()[0]
+                t0 = time.perf_counter()
+                try:
+                    m = run_poses(folder / "capture", "colmap", folder / f"poses_{cfg_name}", cfg, quiet=True,
+                                  overwrite=True)["metrics"]
+                    reason = None
+                except BadInput as exc:
+                    m, reason = {}, str(exc)
+                row = {"views": views, "config": cfg_name, "matcher": m.get("matcher"), "mapper": m.get("mapper"),
+                       "pairs": m.get("pairs"), "extract_s": m.get("extract_time_s"), "match_s": m.get("match_time_s"),
+                       "map_s": m.get("map_time_s"), "poses_wall_s": round(time.perf_counter() - t0, 1),
+                       "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
+                       "rotation_error_deg_mean": m.get("rotation_error_deg_mean"),
+                       "rotation_error_deg_max": m.get("rotation_error_deg_max"),
+                       "center_error_rel_max": m.get("center_error_rel_max"), "failure": reason,
+                       "load_avg_1min_before": round(load_before, 2), "load_avg_1min_after": round(os.getloadavg()[0], 2)}
+                rows.append(row)
+                print(row, flush=True)
+                write_result("bench_poses_scale", {"rows": rows, "layouts": {str(k): v for k, v in LAYOUTS.items()},
+                                                   "note": "one run per cell, poses stage wall time; 1280x960, "
+                                                           "known intrinsics; shared 2-core machine (load average)"})
 
 
 if __name__ == "__main__":
