@@ -57,8 +57,8 @@ from .volume import VoxelField, composite, exclusive_transmittance, optical_dept
 __all__ = ["OrthoCamera", "horizontal_ortho_camera", "ring_cameras", "ThreeCameraScene", "render_spheres",
            "triangulate_orthographic", "ghost_points_closed_form", "pair_triangulations", "blob_centroids",
            "train_on_rays", "density_masses", "cup_field", "render_field", "hidden_cells", "replace_hidden",
-           "colour_matrix", "numerical_rank", "sphere_directions", "ortho_views_of_box", "run_uniqueness_study",
-           "main"]
+           "colour_matrix", "numerical_rank", "sphere_directions", "ortho_views_of_box", "StudySize", "STUDY_SIZES",
+           "run_parts", "run_uniqueness_study", "main"]
 
 
 # =========================================================================== cameras
@@ -576,10 +576,12 @@ STUDY_STEPS = {"fast": 3000, "vanilla": 3000}
 
 
 def study_three_cameras(scene: ThreeCameraScene, seconds: float, seed: int, out: Path, models=("fast", "vanilla"),
-                        steps: dict | None = None, mass_spacing: float = 0.01) -> dict:
+                        steps: dict | None = None, mass_spacing: float = 0.01, overrides: dict | None = None) -> dict:
     """Part 1: images, ghost points (closed form and triangulated from the images' blobs), the
     NeRFs' density masses and held-out scores; writes ghost_points.csv, three_cameras.csv,
-    three_cameras.png into ``out``; returns the figures."""
+    three_cameras.png into ``out``; returns the figures. Each model trains ``steps[name]`` steps
+    (default :data:`STUDY_STEPS`) or ``seconds``, whichever ends first, with :data:`STUDY_MODELS`'
+    settings updated by ``overrides[name]``."""
     true_cams, nominal = scene.cameras(True), scene.cameras(False)
     images = [scene.image(c) for c in true_cams]
     held = scene.held_out_camera()
@@ -609,7 +611,8 @@ def study_three_cameras(scene: ThreeCameraScene, seconds: float, seed: int, out:
     for name in models:
         t0 = time.perf_counter()
         model, n_steps = train_on_rays(name, o, d, rgb, scene.box_lo, scene.box_hi, seconds, seed,
-                                       max_steps=(steps or STUDY_STEPS)[name], overrides=STUDY_MODELS.get(name))
+                                       max_steps=(steps or STUDY_STEPS)[name],
+                                       overrides={**STUDY_MODELS.get(name, {}), **(overrides or {}).get(name, {})})
         train_s = time.perf_counter() - t0
         train_fit = render_rays(model, o, d).numpy().reshape(3, scene.height, scene.width, 3)
         held_img = render_rays(model, ho, hd).numpy().reshape(scene.height, scene.width, 3)
@@ -648,20 +651,23 @@ def study_three_cameras(scene: ThreeCameraScene, seconds: float, seed: int, out:
     return figures
 
 
-def turntable_view_sets() -> list[tuple[str, list[dict]]]:
-    """Growing training sets of rings: the turntable's two (25 and 50 deg, 24 each), then rings
-    added at 65 and 80 deg. Each ring: elevation, count, azimuth offset."""
-    r25 = {"elevation_deg": 25.0, "count": 24, "azimuth_offset_deg": 0.0}
-    r50 = {"elevation_deg": 50.0, "count": 24, "azimuth_offset_deg": 7.5}
-    r65 = {"elevation_deg": 65.0, "count": 24, "azimuth_offset_deg": 3.75}
-    r80 = {"elevation_deg": 80.0, "count": 24, "azimuth_offset_deg": 11.25}
+def turntable_view_sets(per_ring: int = 24) -> list[tuple[str, list[dict]]]:
+    """Growing training sets of rings: the turntable's two (25 and 50 deg, ``per_ring`` views
+    each, 24 on the turntable), then rings added at 65 and 80 deg. Each ring: elevation, count,
+    azimuth offset (fractions of the ring's spacing: 0, 1/2, 1/4, 3/4)."""
+    step = 360.0 / per_ring
+    r25 = {"elevation_deg": 25.0, "count": per_ring, "azimuth_offset_deg": 0.0}
+    r50 = {"elevation_deg": 50.0, "count": per_ring, "azimuth_offset_deg": step / 2}
+    r65 = {"elevation_deg": 65.0, "count": per_ring, "azimuth_offset_deg": step / 4}
+    r80 = {"elevation_deg": 80.0, "count": per_ring, "azimuth_offset_deg": 3 * step / 4}
     return [("ring25", [r25]), ("ring25+50 (turntable)", [r25, r50]), ("+ring65", [r25, r50, r65]),
             ("+ring80", [r25, r50, r65, r80])]
 
 
-def study_same_images(out: Path, n: int = 24, width: int = 48, fov_deg: float = 45.0) -> dict:
+def study_same_images(out: Path, n: int = 24, width: int = 48, fov_deg: float = 45.0, per_ring: int = 24) -> dict:
     """Part 2: two fields with identical training renders and different held-out renders, for
-    growing ring sets; writes same_images.csv and same_images.png; returns the figures."""
+    growing ring sets (:func:`turntable_view_sets`); writes same_images.csv and same_images.png;
+    returns the figures."""
     base = cup_field(n)
     held = ring_cameras(90.0, 1, width, fov_deg, prefix="top")[0]
     ho, hd = _rays([held])
@@ -672,7 +678,7 @@ def study_same_images(out: Path, n: int = 24, width: int = 48, fov_deg: float = 
     in_well = well_air & (X.abs() < 3 / 32) & (Y.abs() < 3 / 32) & (Z > -3 / 16) & (Z < 0.125)
     cell_volume = 1.0 / n ** 3
     rows, panels, figures = [], [], {}
-    for label, rings in turntable_view_sets():
+    for label, rings in turntable_view_sets(per_ring):
         cams = [cam for r in rings for cam in ring_cameras(r["elevation_deg"], r["count"], width, fov_deg,
                                                          azimuth_offset_deg=r["azimuth_offset_deg"])]
         o, d = _rays(cams)
@@ -750,11 +756,63 @@ def study_linear(out: Path, n: int = 8, pixels: int = 24, view_counts=(1, 2, 3, 
     return {"rows": rows, "predicted_block_null_dim": predicted_block_null}
 
 
+@dataclass(frozen=True)
+class StudySize:
+    """How big each part of the study is. Three cameras: each NeRF trains ``nerf_steps[model]``
+    steps (None: :data:`STUDY_STEPS`) or ``nerf_seconds``, whichever ends first, with
+    :data:`STUDY_MODELS` updated by ``nerf_overrides[model]``; density integrated on a grid of
+    ``mass_spacing``. Same images: a ``cup_n``^3 cup, ``ring_width``-pixel square ring cameras,
+    ``per_ring`` views per ring. Linear map: an ``linear_n``^3 grid, ``linear_pixels``^2
+    orthographic views, ``view_counts`` of them, constant optical depths per cell ``optical_depths``."""
+
+    name: str
+    nerf_steps: dict | None = None
+    nerf_seconds: float = 300.0
+    nerf_overrides: dict = field(default_factory=dict)
+    mass_spacing: float = 0.01
+    cup_n: int = 24
+    ring_width: int = 48
+    per_ring: int = 24
+    linear_n: int = 8
+    linear_pixels: int = 24
+    view_counts: tuple = (1, 2, 3, 4, 6, 8, 12, 16, 24)
+    optical_depths: tuple = (0.1, 1.0, 3.0, 10.0)
+
+
+#: the study's sizes: ``full`` (the issue's 10 minutes of NeRF training, both models together),
+#: ``quick`` (a few minutes on 2 cores: training sized to show the effect on 1536 rays) and
+#: ``tiny`` (seconds: tests of the files and the exact claims; its NeRFs are untrained)
+STUDY_SIZES = {
+    "full": StudySize("full", nerf_steps=None, nerf_seconds=300.0, mass_spacing=0.005),
+    "quick": StudySize("quick", nerf_steps={"fast": 1000, "vanilla": 1000}, nerf_seconds=150.0),
+    "tiny": StudySize("tiny", nerf_steps={"fast": 3, "vanilla": 2}, nerf_seconds=30.0, mass_spacing=0.04, cup_n=12,
+                      ring_width=16, per_ring=8, linear_n=4, linear_pixels=12, view_counts=(1, 4, 8),
+                      optical_depths=(1.0,)),
+}
+
+
+def run_parts(out: Path, size: StudySize, seed: int = 0, on_part=None) -> dict:
+    """The three parts at ``size`` into the existing folder ``out`` (CSVs and PNGs, no summary);
+    ``on_part(label)`` is called before each. Returns {"three_cameras", "same_images", "linear"}:
+    each part's figures."""
+    torch.manual_seed(seed)
+    note = on_part or (lambda label: None)
+    note("three cameras: training the NeRFs")
+    part1 = study_three_cameras(ThreeCameraScene(), size.nerf_seconds, seed, out, steps=size.nerf_steps,
+                                mass_spacing=size.mass_spacing, overrides=size.nerf_overrides)
+    note("identical renders of different fields")
+    part2 = study_same_images(out, n=size.cup_n, width=size.ring_width, per_ring=size.per_ring)
+    note("the linear map's rank")
+    part3 = study_linear(out, n=size.linear_n, pixels=size.linear_pixels, view_counts=size.view_counts,
+                         optical_depths=size.optical_depths)
+    return {"three_cameras": part1, "same_images": part2, "linear": part3}
+
+
 def run_uniqueness_study(out: Path, seed: int = 0, minutes: float = 10.0, quick: bool = False) -> dict:
     """The whole study into ``out`` (written in a sibling temporary folder, renamed when complete;
     an existing ``out`` is replaced only if empty or a previous uniqueness study). ``minutes``:
-    the total NeRF training budget, split evenly over the two models. ``quick``: tiny settings for
-    tests. Returns the summary (also ``out/summary.json``)."""
+    the total NeRF training budget, split evenly over the two models. ``quick``: the ``tiny``
+    size of :data:`STUDY_SIZES` (tests). Returns the summary (also ``out/summary.json``)."""
     out = Path(out)
     problem = _input_problem(out, minutes)
     if problem:
@@ -763,19 +821,9 @@ def run_uniqueness_study(out: Path, seed: int = 0, minutes: float = 10.0, quick:
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
     t0 = time.perf_counter()
     try:
-        torch.manual_seed(seed)
-        if quick:
-            scene = ThreeCameraScene()
-            part1 = study_three_cameras(scene, minutes * 30.0, seed, tmp, steps={"fast": 3, "vanilla": 2},
-                                        mass_spacing=0.04)
-            part2 = study_same_images(tmp, n=16, width=24)
-            part3 = study_linear(tmp, n=4, pixels=12, view_counts=(1, 4, 8), optical_depths=(1.0,))
-        else:
-            part1 = study_three_cameras(ThreeCameraScene(), minutes * 30.0, seed, tmp)
-            part2 = study_same_images(tmp)
-            part3 = study_linear(tmp)
-        summary = {"study": "uniqueness", "seed": seed, "minutes": minutes, "quick": quick,
-                   "three_cameras": part1, "same_images": part2, "linear": part3,
+        size = replace(STUDY_SIZES["tiny" if quick else "full"], nerf_seconds=minutes * 30.0)
+        parts = run_parts(tmp, size, seed)
+        summary = {"study": "uniqueness", "seed": seed, "minutes": minutes, "quick": quick, **parts,
                    "wall_s": round(time.perf_counter() - t0, 2)}
         with open(tmp / "summary.json", "w") as f:
             json.dump(summary, f, indent=1, allow_nan=False)
