@@ -1,32 +1,41 @@
-"""Owen-scrambled Sobol points, counter-based: a pure function of (seed, pixel, sample index, dimension).
+"""Shuffled, Owen-scrambled 2-D Sobol points, counter-based: a pure function of (seed, pixel,
+sample index, dimension).
 
 The low-discrepancy sampler of the path tracer (``sampler="sobol"``; the compiled twin of these
-functions is in :mod:`render.integrators.path_kernels`, and tests compare the two). For each
-pixel, the samples of a render are split into ``REPLICATES`` interleaved *replicates*: sample s
-belongs to replicate r = s mod R and is point i = s div R of a Sobol sequence (Joe and Kuo's
-``new-joe-kuo-6.21201`` direction numbers, the table scipy ships, in natural order) that is
-scrambled independently per (seed, pixel, replicate, dimension). A render of samples [0, R 2^m)
-therefore gives every replicate of every pixel a full 2^m-point prefix, a (t, m, s)-net:
-stratified in every elementary interval of the first two dimensions (a (0, m, 2)-net). Disjoint
-sample ranges are disjoint point sets of the same sequences, so they merge exactly.
+functions is in :mod:`render.integrators.path_kernels`, and tests compare the two). It is pbrt-v4's
+``PaddedSobolSampler`` made progressive as in Burley 2020 ("Practical hash-based Owen
+scrambling"): the path's dimensions are grouped as the path tracer consumes them
+(:func:`dimension_group`: the pixel jitter (0, 1), per bounce the light point and the BSDF
+direction as 2-D pairs, the light pick, Fresnel lobe, roulette and spare as 1-D; the kernels
+pick the light with the light point's first number and rescale it, so the pick dimension goes
+unused and each light's points stay stratified), and every group
+draws Sobol dimensions 0 and 1 (Joe and Kuo's direction numbers, scipy's table; a (0, 2)-sequence)
+at an index that is itself Owen-scrambled per group (a nested permutation of the index bits maps
+every aligned block of 2^m indices onto an aligned block, so each 2^m prefix stays a net and
+groups are decorrelated without knowing the sample count), then the value is Owen-scrambled per
+(group, component).
 
-Scrambling (pbrt-v4's ``FastOwenScrambler``, Laine and Karras 2011 / Burley 2020, on the
-bit-reversed value, followed by a random XOR digital shift): both are *nested* permutations of
-the 32 bits (a bit's flip depends only on the bits above it), so nets stay nets; the digital
-shift makes each single point exactly uniform on the 2^-32 grid whatever the hash, so every
-estimator that is unbiased under independent uniforms stays unbiased. Dimensions from
-``SOBOL_DIMS`` on are independent hash uniforms (:func:`render.sampling.uniform`).
+Replicates. For each pixel, the samples are split into ``REPLICATES`` interleaved replicates:
+sample s is point i = s div R of replicate r = s mod R, and every scramble is keyed by (seed,
+pixel, replicate, group). A render of samples [0, R 2^m) gives every replicate of every pixel a
+2^m-point prefix: in each 2-D group a (0, m, 2)-net (each elementary interval of volume 2^-m
+holds exactly one point), in each 1-D group one point per interval [k 2^-m, (k+1) 2^-m).
+Disjoint sample ranges are disjoint points of the same sequences, so they merge exactly. A
+stratified estimate's per-pixel variance is not the sample variance over n (the samples are
+negatively correlated): the R replicates are independent randomizations of the same estimator,
+so the variance of the pixel mean is estimated from the spread of the R replicate means
+(:meth:`render.film.Film.variance`): R - 1 degrees of freedom per pixel, unbiased whenever every
+replicate holds as many samples (spp a multiple of R).
 
-Why replicates: a stratified estimate's per-pixel variance is not the sample variance over n
-(the samples are negatively correlated). The R replicates are independent randomizations of the
-same estimator, so the variance of the pixel mean is estimated from the spread of the R
-replicate means (:class:`render.film.Film` keeps per-replicate sums): R - 1 degrees of freedom
-per pixel, unbiased whenever every replicate holds as many samples (spp a multiple of R).
+Scrambling (pbrt-v4's ``FastOwenScrambler``: Laine and Karras 2011 on the bit-reversed value)
+is a nested permutation of the 32 bits (a bit's flip depends only on the bits above it), so nets
+stay nets; the values are then XORed by a random 32-bit digital shift, which makes each single
+coordinate exactly uniform on the 2^-32 grid whatever the hash: every estimator unbiased under
+independent uniforms stays unbiased.
 
 Path keys (uint64, one per camera sample): the high 32 bits hash (seed, pixel, replicate), the
-low 32 bits are the Sobol index i (so sample indices up to R 2^32).
-
-Uniforms are float64 in [0, 1) on a 2^-32 grid.
+low 32 bits are the Sobol index i (so sample indices up to R 2^32). Uniforms are float64 in
+[0, 1) on a 2^-32 grid.
 """
 from __future__ import annotations
 
@@ -35,13 +44,11 @@ import os
 
 import numpy as np
 
-from .sampling import _GOLDEN, _M2, _mix64, uniform
+from .sampling import _GOLDEN, _M2, _mix64
 
-__all__ = ["SOBOL_DIMS", "REPLICATES", "SAMPLERS", "direction_numbers", "sobol_u32", "owen_scramble",
-           "sobol_keys", "sobol_uniform", "sobol_block", "replicate_of"]
+__all__ = ["REPLICATES", "SAMPLERS", "DIRECTIONS", "direction_numbers", "dimension_group", "sobol_u32",
+           "owen_scramble", "nested_scramble", "sobol_keys", "sobol_uniform", "sobol_block", "replicate_of"]
 
-#: Sobol dimensions used (camera 2 + 8 per bounce: enough for max_depth 31); later dimensions hash
-SOBOL_DIMS = 256
 #: independent scramblings per pixel, interleaved over the sample index (sample s: replicate s mod R)
 REPLICATES = 16
 #: the samplers of the compiled integrators (path, direct): name -> code in PathConfig.sampler
@@ -58,10 +65,10 @@ def _joe_kuo_table() -> tuple[np.ndarray, np.ndarray]:
     spec = importlib.util.find_spec("scipy")
     path = os.path.join(spec.submodule_search_locations[0], "stats", "_sobol_direction_numbers.npz")
     with np.load(path) as z:
-        return z["poly"][:SOBOL_DIMS].astype(np.int64), z["vinit"][:SOBOL_DIMS].astype(np.int64)
+        return z["poly"].astype(np.int64), z["vinit"].astype(np.int64)
 
 
-def direction_numbers(dims: int = SOBOL_DIMS) -> np.ndarray:
+def direction_numbers(dims: int = 2) -> np.ndarray:
     """(dims, 32) uint32 Sobol direction numbers v[d, k] (bit k of the index XORs v[d, k] into
     dimension d), from Joe and Kuo's primitive polynomials and initial numbers by Bratley and
     Fox's recurrence (scipy's ``_initialize_v``; dimension 0 is van der Corput's)."""
@@ -81,12 +88,25 @@ def direction_numbers(dims: int = SOBOL_DIMS) -> np.ndarray:
     return (v << (31 - np.arange(32))).astype(np.uint32)
 
 
-#: (SOBOL_DIMS, 32) uint32 direction numbers (the compiled kernels read the same table)
-DIRECTIONS = direction_numbers()
+#: (2, 32) uint32 direction numbers of Sobol dimensions 0 and 1 (the compiled kernels read the same table)
+DIRECTIONS = direction_numbers(2)
+
+#: position in a bounce's 8 dimensions (2 + 8 depth + j, render.integrators.path_kernels.shade_bounce)
+#: -> component in its group: the light point (j = 1, 2) and the BSDF direction (j = 4, 5) are 2-D
+_BOUNCE_COMPONENT = np.array([0, 0, 1, 0, 0, 1, 0, 0], np.int64)
+
+
+def dimension_group(dim):
+    """(first dimension of the group, component 0 or 1) of path dimension(s) ``dim`` (int or
+    array): (0, 1) is the pixel jitter, then per bounce [pick, light point (2), Fresnel, BSDF
+    direction (2), roulette, spare]."""
+    d = np.asarray(dim, dtype=np.int64)
+    comp = np.where(d < 2, d, _BOUNCE_COMPONENT[np.maximum(d - 2, 0) % 8])
+    return d - comp, comp
 
 
 def sobol_u32(index: np.ndarray, dim: int) -> np.ndarray:
-    """(N,) uint64 holding the 32-bit unscrambled Sobol value of dimension ``dim`` (< SOBOL_DIMS)
+    """(N,) uint64 holding the 32-bit unscrambled Sobol value of dimension ``dim`` (0 or 1)
     at natural-order indices ``index`` (N,) (x_i = XOR of v[dim, k] over the set bits k of i)."""
     i = np.asarray(index, dtype=np.uint64) & _MASK32
     out = np.zeros(i.shape, np.uint64)
@@ -105,17 +125,24 @@ def _reverse32(v: np.ndarray) -> np.ndarray:
 
 
 def owen_scramble(v: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Nested scramble of 32-bit values v (N,) uint64 by 64-bit hashes h (N,) uint64: the
-    Laine-Karras permutation keyed by h's low 32 bits on the reversed bits, then an XOR by h's
-    high 32 bits. Returns (N,) uint64 < 2^32."""
+    """Owen scramble of 32-bit values v (N,) uint64 by 64-bit hashes h (N,) uint64: the nested
+    permutation keyed by h's low 32 bits (:func:`nested_scramble`), then an XOR by h's high 32
+    bits (the digital shift that makes each value exactly uniform). Returns (N,) uint64 < 2^32."""
+    return nested_scramble(v, h) ^ (h >> _S32)
+
+
+def nested_scramble(x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Owen's nested scramble of 32-bit integers x (N,) uint64 keyed by hashes h (low 32 bits):
+    bit k flips as a function of the bits above it, so every aligned block of 2^m values maps
+    onto an aligned block (the index shuffle). Returns (N,) uint64 < 2^32."""
     seed = h & _MASK32
-    x = _reverse32(v)
+    x = _reverse32(x)
     x = (x ^ (x * np.uint64(0x3D20ADEA))) & _MASK32
     x = (x + seed) & _MASK32
     x = (x * ((seed >> np.uint64(16)) | np.uint64(1))) & _MASK32
     x = (x ^ (x * np.uint64(0x05526C56))) & _MASK32
     x = (x ^ (x * np.uint64(0x53A22864))) & _MASK32
-    return _reverse32(x) ^ (h >> _S32)
+    return _reverse32(x)
 
 
 def sobol_keys(seed: int, pixel: np.ndarray, sample: np.ndarray) -> np.ndarray:
@@ -135,13 +162,13 @@ def replicate_of(sample: np.ndarray) -> np.ndarray:
 
 
 def sobol_uniform(keys: np.ndarray, dim: int) -> np.ndarray:
-    """(N,) float64 in [0, 1): dimension ``dim`` of each Sobol path key (:func:`sobol_keys`);
-    independent hash uniforms of the whole key from SOBOL_DIMS on."""
-    if dim >= SOBOL_DIMS:
-        return uniform(keys, dim)
-    scramble_key = keys & _HI32  # one scramble per (seed, pixel, replicate, dimension)
-    h = _mix64(scramble_key + np.uint64((int(dim) + 1) * 0x9E3779B97F4A7C15 & 0xFFFFFFFFFFFFFFFF))
-    v = owen_scramble(sobol_u32(keys & _MASK32, dim), h)
+    """(N,) float64 in [0, 1): dimension ``dim`` of each Sobol path key (:func:`sobol_keys`):
+    component c of group g (:func:`dimension_group`) is Sobol dimension c at the index
+    shuffled by a hash of (key, g), Owen-scrambled by a hash of (key, g, c)."""
+    g, c = (int(x) for x in dimension_group(int(dim)))
+    h_index = _mix64((keys & _HI32) + np.uint64((g + 1) * 0x9E3779B97F4A7C15 & 0xFFFFFFFFFFFFFFFF))
+    h_value = _mix64(h_index ^ np.uint64((c + 1) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF))
+    v = owen_scramble(sobol_u32(nested_scramble(keys & _MASK32, h_index), c), h_value)
     return v.astype(np.float64) * (1.0 / 4294967296.0)
 
 

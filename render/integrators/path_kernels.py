@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..sobol import DIRECTIONS, REPLICATES, SOBOL_DIMS
+from ..sobol import DIRECTIONS, REPLICATES
 
 __all__ = ["KernelScene", "kernel_scene", "sample_camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
            "accumulate", "accumulate_replicates", "uniform_dims", "PathConfig", "PinholeCamera",
@@ -52,11 +52,12 @@ _OFFSET_REL = 1e-6  # render.accel.OFFSET_REL
 _TMAX_CAP = 3e38  # largest tmax handed to Embree (float32)
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
-_SOBOL_V = DIRECTIONS.astype(np.uint64)  # (SOBOL_DIMS, 32): a global, frozen into the compiled code
+_SOBOL_V1 = DIRECTIONS[1].astype(np.uint64)  # (32,) Sobol dimension 1 (a global, frozen into the compiled code)
 _MASK32 = np.uint64(0xFFFFFFFF)
 _HI32 = np.uint64(0xFFFFFFFF00000000)
 _U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
 _INV_2_32 = 1.0 / 4294967296.0
+_ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
 _REPLICATES = np.uint64(REPLICATES)
 
 
@@ -159,25 +160,37 @@ def _reverse32(v):
 
 
 @njit(inline="always", **_JIT)
-def _sobol(key, dim):
-    """render.sobol.sobol_uniform for one Sobol path key and a dimension < SOBOL_DIMS."""
-    idx = key & _MASK32
-    v = _U0
-    k = 0
-    while idx != _U0:
-        if (idx & _U1) != _U0:
-            v ^= _SOBOL_V[dim, k]
-        idx >>= _U1
-        k += 1
-    h = _mix64((key & _HI32) + np.uint64(dim + 1) * _GOLDEN)
+def _nested(x, h):
+    """render.sobol.nested_scramble of a 32-bit value (in a uint64) by hash h."""
     seed = h & _MASK32
-    x = _reverse32(v)
+    x = _reverse32(x)
     x = (x ^ (x * np.uint64(0x3D20ADEA))) & _MASK32
     x = (x + seed) & _MASK32
     x = (x * ((seed >> _U16) | _U1)) & _MASK32
     x = (x ^ (x * np.uint64(0x05526C56))) & _MASK32
     x = (x ^ (x * np.uint64(0x53A22864))) & _MASK32
-    x = _reverse32(x) ^ (h >> _U32)
+    return _reverse32(x)
+
+
+@njit(inline="always", **_JIT)
+def _sobol(key, dim):
+    """render.sobol.sobol_uniform for one Sobol path key and dimension."""
+    comp = 0
+    if dim < 2:
+        comp = dim
+    elif (dim - 2) % 8 == 2 or (dim - 2) % 8 == 5:  # second of the light point / BSDF direction pairs
+        comp = 1
+    h_index = _mix64((key & _HI32) + np.uint64(dim - comp + 1) * _GOLDEN)
+    h_value = _mix64(h_index ^ (np.uint64(comp + 1) * _M1))
+    j = _nested(key & _MASK32, h_index)
+    if comp == 0:  # van der Corput: the reversed index
+        v = _reverse32(j)
+    else:
+        v = _U0
+        for k in range(32):
+            if ((j >> np.uint64(k)) & _U1) != _U0:
+                v ^= _SOBOL_V1[k]
+    x = _nested(v, h_value) ^ (h_value >> _U32)
     return np.float64(x) * _INV_2_32
 
 
@@ -185,7 +198,7 @@ def _sobol(key, dim):
 def _sample(sampler, key, dim):
     """Dimension ``dim`` of a path key under ``sampler`` (SAMPLER_INDEPENDENT: the hash of
     render.sampling.uniform; SAMPLER_SOBOL: render.sobol.sobol_uniform)."""
-    if sampler == SAMPLER_SOBOL and dim < SOBOL_DIMS:
+    if sampler == SAMPLER_SOBOL:
         return _sobol(key, dim)
     return _uniform(key, dim)
 
@@ -406,7 +419,7 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
                 p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq):
     """Next-event estimation at a Lambertian vertex p (shading normal n, geometric ng; 3-tuples)
     of albedo a and throughput b (3-tuples): one light sample (pick, point: dimensions base ..
-    base + 2), queued as a shadow ray with its unoccluded contribution. Returns the new queue
+    base + 2; the Sobol sampler picks with base + 1 and reuses it, rescaled, for the point), queued as a shadow ray with its unoccluded contribution. Returns the new queue
     length. (Points and colours travel as tuples: CPython passes calls of more than 30
     arguments as *args, which numba cannot inline.)"""
     px, py, pz = p
@@ -414,8 +427,20 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
     ngx, ngy, ngz = ng
     b0, b1, b2 = b
     a0, a1, a2 = a
-    k = _pick(cdf, _sample(cfg.sampler, key, base))
-    u1, u2 = _sample(cfg.sampler, key, base + 1), _sample(cfg.sampler, key, base + 2)
+    if cfg.sampler == SAMPLER_SOBOL:
+        # pick and point from one 2-D group (base + 1, base + 2): the pick's number, rescaled
+        # within the picked light's CDF interval, is uniform again and becomes the point's first
+        # coordinate, so each light's points keep the pair's stratification (pbrt's remapped u)
+        ua = _sample(cfg.sampler, key, base + 1)
+        k = _pick(cdf, ua)
+        lo = cdf[k - 1] if k > 0 else 0.0
+        width = cdf[k] - lo
+        u1 = min((ua * cdf[len(cdf) - 1] - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
+        u1 = max(u1, 0.0)
+    else:
+        k = _pick(cdf, _sample(cfg.sampler, key, base))
+        u1 = _sample(cfg.sampler, key, base + 1)
+    u2 = _sample(cfg.sampler, key, base + 2)
     if k < n_area:
         ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
         ldelta = False

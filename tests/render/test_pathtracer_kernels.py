@@ -15,7 +15,7 @@ from render.accel import Accel, Geometry, spawn_origin
 from render.bsdf import MaterialTable
 from render.integrators import RenderSettings, prepare, render
 from render.integrators.path import pinhole_of
-from render.integrators.path_kernels import _albedo, _GOLDEN, sample_camera_rays, uniform_dims
+from render.integrators.path_kernels import _albedo, _GOLDEN, SAMPLER_INDEPENDENT, sample_camera_rays, uniform_dims
 from render.sampling import _mix64, cosine_hemisphere, orthonormal_frame, path_keys, to_world, uniform_block
 from render.scene import Lambertian, Scene, SceneObject
 
@@ -26,7 +26,8 @@ def test_rng_and_camera_rays_match_numpy():
     keys, pix = np.empty(n, np.uint64), np.empty(n, np.int64)
     o32, d32, jit = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(seed)], dtype=np.uint64) + _GOLDEN)[0]
-    sample_camera_rays(0, n, npix, 32, sample0, seed_mix, pinhole_of(cam), True, keys, pix, o32, d32, jit)
+    sample_camera_rays(0, n, npix, 32, sample0, seed_mix, pinhole_of(cam), True, keys, pix, o32, d32, jit,
+                       SAMPLER_INDEPENDENT)  # the Sobol sampler's twin: tests/render/test_sobol.py
     flat = np.arange(n)
     assert np.array_equal(pix, flat % npix)
     assert np.array_equal(keys, path_keys(seed, flat % npix, sample0 + flat // npix))
