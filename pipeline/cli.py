@@ -85,6 +85,8 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
+              sampler: Optional[str] = typer.Option(None, help="path/direct random numbers: sobol (the default: "
+                                                               "Owen-scrambled Sobol) | independent"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
               scheduler: Optional[str] = SCHEDULER,
@@ -96,7 +98,8 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
 
     rig, path = _load(scene)
     out = out or stage_dir(rig.scene.name, "reference", root)
-    config = ReferenceConfig(spp=spp, size=size, views=views, integrator=integrator, seed=seed, max_depth=max_depth)
+    config = ReferenceConfig(spp=spp, size=size, views=views, integrator=integrator, seed=seed, max_depth=max_depth,
+                             sampler=sampler)
     m = run_reference(rig, path, out, config, quiet, _cluster(scheduler, workers), overwrite=overwrite)
     typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")

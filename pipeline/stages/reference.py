@@ -35,6 +35,7 @@ import numpy as np
 from render import integrators
 from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
+from render.integrators.settings import SAMPLER_NAMES
 from render.film import Film, merge_stats
 from render.image_io import write_exr, write_preview
 from rig.build import RigScene
@@ -53,7 +54,8 @@ VIEW_CHOICES = ("auto", "test", "all", "scene")
 #: so 65536 spp is 8192 units per view; 8x the largest reference the project renders (8192 spp)
 MAX_SPP = 1 << 16
 #: memory one view costs per pixel while it renders, per worker (bytes): the fold's films
-#: (accumulated, incoming, merged: 3 x 56 B of float64 moments and int64 counts), the float32
+#: (accumulated, incoming, merged: 3 x 56 B of float64 moments and int64 counts; with the Sobol
+#: sampler 3 x 440 B, its 16 replicate sums adding 384 B each: path and direct ~1.5 kB), the float32
 #: mean and variance and their EXR / PNG encodings (~100 B), and the integrators' own per-pixel
 #: arrays, measured as tracemalloc's peak per unit at 256^2 and 512^2 on cornell: sppm 861 (one
 #: photon per pixel per pass), pssmlt 181, bdpt 121, volpath 85 B/px (path and direct trace
@@ -178,6 +180,9 @@ class ReferenceConfig:
     seed: int = 0
     #: maximum bounces
     max_depth: int = 8
+    #: random numbers of path / direct: "sobol" or "independent" (render.sobol); None: the
+    #: integrator's default (sobol); refused by integrators that do not read it
+    sampler: str | None = None
 
 
 def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceConfig = ReferenceConfig(),
@@ -192,6 +197,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     bytes either way."""
     spp, size, views, integrator, seed, max_depth = (config.spp, config.size, config.views, config.integrator,
                                                      config.seed, config.max_depth)
+    if config.sampler is not None and config.sampler not in SAMPLER_NAMES:
+        raise BadInput(f"--sampler must be one of {', '.join(SAMPLER_NAMES)}, got '{config.sampler}'")
     if not 1 <= spp <= MAX_SPP:
         raise BadInput(f"--spp must lie in [1, {MAX_SPP}], got {spp}")
     if size is not None and (size[0] < 1 or size[1] < 1):
@@ -201,7 +208,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         chosen = [(s, resize_camera(c, *size)) for s, c in chosen]
     check_fits(chosen, size, _workers_here(cluster), available_memory())
     try:
-        settings = integrators.RenderSettings(integrator=integrator, spp=spp, seed=seed, max_depth=max_depth)
+        settings = integrators.RenderSettings(integrator=integrator, spp=spp, seed=seed, max_depth=max_depth,
+                                              sampler=config.sampler)
     except ValueError as exc:
         raise BadInput(f"--integrator/--max-depth: {exc}") from None
     from render.effects import scene_effects
@@ -213,8 +221,13 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     except ValueError as exc:
         raise BadInput(f"--integrator: {exc}") from None
     settings = replace(settings, integrator=chosen_integrator)
+    try:  # an option the chosen integrator does not read is refused here, before any work
+        options = settings.options(chosen_integrator, integrators.INTEGRATOR_OPTIONS[chosen_integrator])
+    except ValueError as exc:
+        raise BadInput(f"--sampler: {exc}") from None
     manifest = Manifest("reference", params={
         "scene": rig.scene.name, "views": views, "splits": sorted({s for s, _ in chosen}), "spp": spp, "seed": seed, "max_depth": max_depth,
+        "sampler": getattr(options, "sampler", None),
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)

@@ -20,8 +20,8 @@ from render.integrators.settings import OPTION_NAMES
 
 #: the options each integrator reads (what its module documents)
 USES = {
-    "direct": {"strategy", "heuristic"},
-    "path": {"roulette", "rr_depth", "strategy", "heuristic"},
+    "direct": {"strategy", "heuristic", "sampler"},
+    "path": {"roulette", "rr_depth", "strategy", "heuristic", "sampler"},
     "volpath": {"roulette", "rr_depth", "strategy", "heuristic"},
     "bdpt": {"roulette", "rr_depth", "heuristic"},
     "sppm": {"photons_per_pass"},
@@ -29,7 +29,8 @@ USES = {
     "irradiance_cache": {"error_bound", "record_rays", "min_spacing", "max_spacing", "cache_direct", "roulette",
                          "rr_depth", "heuristic"},
 }
-VALUES = {"roulette": False, "rr_depth": 1, "strategy": "light", "heuristic": "balance", "photons_per_pass": 10}
+VALUES = {"roulette": False, "rr_depth": 1, "strategy": "light", "heuristic": "balance", "photons_per_pass": 10,
+          "sampler": "independent"}
 
 
 def test_registry_is_one_table_of_modules():

@@ -1,0 +1,42 @@
+"""`lumigraph reference --sampler` through the real process: the sampler recorded in the manifest,
+bad values and integrators that do not read it refused (exit 2, one stderr line naming the
+option, nothing written)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from render.image_io import read_exr
+
+
+def _reference(out, *extra):
+    return subprocess.run([sys.executable, "-m", "pipeline", "reference", "cornell", "--views", "scene", "--spp", "16",
+                           "--size", "8", "8", "--out", str(out), "--quiet", *extra],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_sampler_is_recorded_and_changes_the_render(tmp_path):
+    runs = {}
+    for sampler in (None, "independent"):
+        out = tmp_path / (sampler or "default") / "reference"
+        proc = _reference(out, *(["--sampler", sampler] if sampler else []))
+        assert proc.returncode == 0, proc.stderr
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert manifest["params"]["sampler"] == (sampler or "sobol")
+        runs[sampler] = read_exr(next((out / "linear").glob("*.exr")))
+    assert np.all(np.isfinite(runs[None])) and not np.array_equal(runs[None], runs["independent"])
+
+
+@pytest.mark.parametrize("extra,names", [(["--sampler", "halton"], ["--sampler", "halton"]),
+                                         (["--sampler", "sobol", "--integrator", "bdpt"], ["--sampler", "bdpt"])])
+def test_bad_or_unused_sampler_exits_2_with_one_line(tmp_path, extra, names):
+    out = tmp_path / "reference"
+    proc = _reference(out, *extra)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and all(n in lines[0] for n in names), lines
+    assert not out.exists() and not any(tmp_path.glob(".reference.partial-*"))
