@@ -12,7 +12,7 @@ figures; see :mod:`pipeline.stages.lecture`). Files written into the study folde
     nerf_masses.svg      those masses, in units of one true sphere's mass
     same_images.csv      two fields with identical training renders, per set of turntable rings
     same_images.png      the held-out renders and their difference
-    same_images.svg      held-out PSNR between the two fields and hidden cells against training views
+    same_images.svg      held-out display PSNR between the two fields against training views
     linear_rank.csv      rank of colour -> images against views, per fixed density
     linear_rank.svg      (and .png) that rank against the number of views
     summary.json         the front page, plus every figure of the three parts
