@@ -17,8 +17,11 @@ similarity frame: align them with :func:`recon.poses.align.umeyama` before compa
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
+import sys
 import time
+from contextlib import contextmanager
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -318,7 +321,9 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     fixed = config.known_intrinsics
     (workdir / "sparse").mkdir(exist_ok=True)
     if mapper == "global":
-        models = pycolmap.global_mapping(db, image_dir, workdir / "sparse", options=_global_options(config, len(names)))
+        with _info_lines_dropped(workdir / "mapper.log"):
+            models = pycolmap.global_mapping(db, image_dir, workdir / "sparse",
+                                             options=_global_options(config, len(names)))
     else:
         opts = pycolmap.IncrementalPipelineOptions()
         opts.random_seed = config.seed
@@ -349,7 +354,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         so.max_num_iterations = config.final_ba_iterations
         so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
         so.num_threads = 1
-        pycolmap.bundle_adjustment(rec, ba)
+        with _info_lines_dropped(workdir / "ba.log"):
+            pycolmap.bundle_adjustment(rec, ba)
 
     times["map"] = time.perf_counter() - t0
     cameras, registered = [], set()
@@ -373,6 +379,27 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
                         num_models=len(models), mean_track_length=float(rec.compute_mean_track_length())
                         if len(points) else 0.0, reconstruction=rec, matcher=matcher, mapper=mapper,
                         pairs=n_pairs, times_s={k: round(v, 3) for k, v in times.items()})
+
+
+@contextmanager
+def _info_lines_dropped(log: Path):
+    """Run the block with file descriptor 2 sent to ``log``, then pass on all but glog's INFO
+    lines. pycolmap.bundle_adjustment logs its heading and timer at INFO whatever
+    ``pycolmap.logging.minloglevel`` says, and a CLI's bad-input exit must print one line."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(log, "wb") as f:
+            os.dup2(f.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+    for line in log.read_text(errors="replace").splitlines():
+        if line and not line.startswith("I"):
+            print(line, file=sys.stderr)
 
 
 def _global_options(config: ColmapConfig, n_images: int):
