@@ -35,8 +35,12 @@ traced together. After ``ROUNDS`` rounds every point still unserved becomes a re
 a = 0 every point is its own record, and the estimate is the path tracer's first-bounce
 irradiance estimator (unbiased; tests/render/test_irradiance_cache.py).
 
-Pixel values: L = L_direct + albedo(x) / pi * E(x) at the first hit x when it is Lambertian
-(textured albedo included); camera rays that hit an emitter or miss keep direct's value.
+Pixel values: the mean over the pixel's samples of direct light (``direct``'s estimate), plus
+the mean over its first ``lookup_spp`` samples (per group) of albedo(x) / pi * E(x) at their
+first hits x that are Lambertian (textured albedo included): each mean is unbiased for its part
+of the pixel's box-filtered radiance, and the indirect part, smooth and interpolated, needs far
+fewer samples than the direct part (lookups, not records, would dominate the time otherwise).
+The query points of a group's cache are those looked-up samples' first hits.
 Reaches effects direct, shadows, soft_shadows, interreflection; specular surfaces, caustics,
 media and GGX materials are refused by :func:`render.integrators.choice.choose_integrator`
 (one line naming the effect); without 'interreflection' among the effects there is nothing to
@@ -99,6 +103,8 @@ class Options:
     min_spacing: float = 0.005
     #: largest record spacing R_i as a fraction of the scene's extent
     max_spacing: float = 0.15
+    #: camera samples per pixel (of each group) that look the cache up; all samples add direct light
+    lookup_spp: int = 4
     #: records hold total irradiance (True) or indirect only, direct light per pixel sample (False)
     cache_direct: bool = False
     #: Russian roulette on the record rays' paths when leaving vertices of index >= rr_depth
@@ -117,6 +123,8 @@ class Options:
         if not 0 < self.min_spacing <= self.max_spacing:
             raise ValueError("irradiance_cache: need 0 < min_spacing <= max_spacing, got "
                              f"{self.min_spacing}, {self.max_spacing}")
+        if self.lookup_spp < 1:
+            raise ValueError(f"irradiance_cache: lookup_spp must be >= 1, got {self.lookup_spp}")
         if self.rr_depth < 0:
             raise ValueError(f"irradiance_cache: rr_depth must be >= 0, got {self.rr_depth}")
 
@@ -497,11 +505,18 @@ def render_cache(scene: Scene, camera: Camera, settings: RenderSettings, options
             if pool is not None:
                 pool.shutdown()
         stats["direct_s"] += time.perf_counter() - t0
+        # the group's image: mean over its samples of direct light, plus the cached indirect term
+        # averaged over the first ``lookups`` samples of each pixel (each mean unbiased for its part)
+        image = np.zeros((npix, 3))
+        for c in range(3):
+            image[:, c] = np.bincount(pix_all, weights=L[:, c], minlength=npix) / (g1 - g0)
+        lookups = min(options.lookup_spp, g1 - g0)
         if interreflection:
-            pix, tri, p, ng, u, v = _first_hits(ps, camera, settings.seed, g0, 0, total, direct_cfg.sampler)
-            stats["rays"] += total
+            nl = npix * lookups
+            pix, tri, p, ng, u, v = _first_hits(ps, camera, settings.seed, g0, 0, nl, direct_cfg.sampler)
+            stats["rays"] += nl
             obj = np.where(tri >= 0, ps.geom.obj[np.maximum(tri, 0)], 0)
-            diffuse = (tri >= 0) & lambert[obj] if len(lambert) else np.zeros(total, bool)
+            diffuse = (tri >= 0) & lambert[obj] if len(lambert) else np.zeros(nl, bool)
             if diffuse.any():
                 sel = np.flatnonzero(diffuse)
                 cache = build_cache(ps, p[sel], ng[sel], options, settings.max_depth, settings.seed,
@@ -509,15 +524,13 @@ def render_cache(scene: Scene, camera: Camera, settings: RenderSettings, options
                 E, _ = cache.lookup(p[sel], ng[sel])
                 tri_s, u_s, v_s = tri[sel], u[sel], v[sel]
                 albedo = ps.mats.diffuse_albedo(obj[sel], lambda m: ps.geom.texcoords(tri_s[m], u_s[m], v_s[m]))
-                L[sel] += albedo / np.pi * E
+                indirect = albedo / np.pi * E
+                for c in range(3):
+                    image[:, c] += np.bincount(pix[sel], weights=indirect[:, c], minlength=npix) / lookups
                 for key in ("records", "record_rays", "create_s", "lookup_s"):
                     stats[key] += cache.stats[key]
                 stats["rays"] += cache.stats["rays"]
-        # the group's image: mean over its samples, one film sample (groups are independent)
-        s1 = np.zeros((npix, 3))
-        for c in range(3):
-            s1[:, c] = np.bincount(pix_all, weights=L[:, c], minlength=npix)
-        image = s1 / (g1 - g0)
+        # one film sample per group (groups are independent)
         film.add_moments(image, image * image, np.ones(npix, np.int64))
         stats["paths"] += total
         stats["groups"] += 1

@@ -26,7 +26,7 @@ USES = {
     "bdpt": {"roulette", "rr_depth", "heuristic"},
     "sppm": {"photons_per_pass"},
     "pssmlt": {"heuristic"},
-    "irradiance_cache": {"error_bound", "record_rays", "min_spacing", "max_spacing", "cache_direct", "roulette",
+    "irradiance_cache": {"error_bound", "record_rays", "min_spacing", "max_spacing", "lookup_spp", "cache_direct", "roulette",
                          "rr_depth", "heuristic"},
 }
 VALUES = {"roulette": False, "rr_depth": 1, "strategy": "light", "heuristic": "balance", "photons_per_pass": 10,
