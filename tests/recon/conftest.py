@@ -63,6 +63,9 @@ def repeated_texture() -> dict:
     spec["cameras"]["train"] = [{"ring": {"elevation_deg": 25, "count": 16, "distance": 0.9, "target": [0, 0, 0.08]}}]
     spec["cameras"]["test"] = [{"ring": {"elevation_deg": 35, "count": 4, "distance": 0.9, "target": [0, 0, 0.08],
                                          "azimuth_offset_deg": 45}}]
+    # sensor noise (seeded per view), as any camera has: without it views 90 degrees apart are
+    # bit-identical images, which the poses stage refuses as duplicate views before COLMAP runs
+    spec["sensor"] = {"noise": [20000, 0.002]}
     return spec
 
 

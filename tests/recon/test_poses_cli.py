@@ -166,3 +166,13 @@ def test_a_stopped_colmap_run_leaves_no_work_folder_in_the_temp_folder(small_cap
     assert list(out.parent.glob(".colmap.partial-*"))  # SIGTERM kills: the partial folder stays ...
     assert lumigraph("poses", small_capture, "--method", "gt", "--out", out, "--quiet").returncode == 0
     assert not list(out.parent.glob(".colmap.partial-*"))  # ... until the next run removes it
+
+
+def test_a_failed_colmap_run_prints_one_line(repeated_capture, tmp_path):
+    """COLMAP folds the four-fold symmetric box (test_poses.py): exit 2 and one stderr line. Before,
+    pycolmap.bundle_adjustment's INFO heading and timer reached stderr whatever
+    pycolmap.logging.minloglevel said (three lines; the break this test catches)."""
+    out = tmp_path / "colmap"
+    assert_one_line_exit_2(lumigraph("poses", repeated_capture, "--method", "colmap", "--out", out, "--quiet"),
+                           "poses colmap:", "metrics.json")
+    assert json.loads((out / "metrics.json").read_text())["status"] == "failed"
