@@ -319,15 +319,23 @@ def _usage_error_line(exc: Exception) -> str | None:
     return " ".join(exc.format_message().split()) + hint
 
 
+def _bad_input_types() -> tuple[type, ...]:
+    """The exceptions that mean bad input: BadInput, FileNotFoundError, and rig's SpecError and
+    CaptureError when the verb imported their modules (a module never imported cannot have
+    raised; importing rig here would load trimesh and scipy for ``--help`` and every verb)."""
+    types = [BadInput, FileNotFoundError]
+    for module, name in (("rig.spec", "SpecError"), ("rig.capture", "CaptureError")):
+        if module in sys.modules:
+            types.append(getattr(sys.modules[module], name))
+    return tuple(types)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: bad input and usage errors exit 2 with one line on stderr; bugs surface with
     exit 1 and their traceback."""
-    from rig.capture import CaptureError
-    from rig.spec import SpecError
-
     try:
         app(args=argv, standalone_mode=False, prog_name="lumigraph")
-    except (BadInput, SpecError, CaptureError, FileNotFoundError) as exc:
+    except _bad_input_types() as exc:  # evaluated when an exception arrives, after the verb's imports
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"lumigraph: error: {msg}", file=sys.stderr)
         return 2
