@@ -3,8 +3,8 @@
 The lecture's slide "Biased vs unbiased rendering" says that very few people can tell whether a
 render is nearly physically correct. A light meter can. This study measures the irradiance E
 (W/m^2 per channel, and its lux-like luminance Y, :mod:`render.sensors`) at a handful of sensor
-points of the Cornell box (the "hall": floor under the light, floor in the open, back wall, green
-wall, ceiling corner; millimetre frame, +Y up) three ways:
+points of the Cornell box (the "hall": the short block's top under the light, the floor in the open,
+the back wall, the green wall, a ceiling corner lit only indirectly; millimetre frame, +Y up) three ways:
 
 * **unbiased** (:func:`render.sensors.unbiased_irradiance`): the reference path tracer from the
   sensor, with a 95% normal confidence interval from the sample variance. A long run (another
@@ -23,7 +23,10 @@ Files (in the study folder)::
     sensors.csv        the sensors and the reference: position, normal, E (R, G, B), Y, its 95% CI
     estimates.csv      one row per (estimator, sensor, budget): budget (samples, photons or error
                        bound), wall time (all sensors together), E, Y, the relative error against
-                       the reference, the estimator's own 95% interval, inside the reference's CI or not
+                       the reference, the estimator's own 95% interval (Y_lo, Y_hi: the unbiased CI;
+                       Student t over photon groups / cache seeds: noise only), inside the reference's
+                       CI or not, the own interval holding the reference or not, photon mapping's mean
+                       gather radius (mm), the cache's records
     bias_<sensor>.svg  per sensor: each estimator's Y relative to the reference (%) against time,
                        the unbiased 95% band beside the biased estimates
     bias_error.svg     every biased estimate's |error| (%) against time beside the unbiased
@@ -59,7 +62,7 @@ Z95 = 1.959963984540054  # two-sided 95% normal quantile
 #: the hall's sensors (the Cornell box's millimetre frame, +Y up; the light is the quad
 #: x 213..343, z 227..332 at y 548.7 emitting downwards)
 HALL_SENSORS = (
-    Sensor("under_light", (278.0, 0.0, 280.0), (0.0, 1.0, 0.0)),
+    Sensor("under_light", (230.0, 165.0, 240.0), (0.0, 1.0, 0.0)),  # the short block's top, wholly lit
     Sensor("floor", (150.0, 0.0, 420.0), (0.0, 1.0, 0.0)),
     Sensor("back_wall", (278.0, 274.0, 559.2), (0.0, 0.0, -1.0)),
     Sensor("green_wall", (0.0, 274.0, 280.0), (1.0, 0.0, 0.0)),
@@ -72,7 +75,7 @@ class BiasSize:
     """How much work each estimator gets.
 
     reference_samples: unbiased samples per sensor of the reference (seed + 1).
-    curve_samples: the unbiased curve's largest sample count (checkpoints double from 16).
+    curve_samples: the unbiased curve's largest sample count (checkpoints double from 256).
     photon_groups, photon_passes, photons_per_pass: photon mapping's K groups of P passes.
     radius_fraction: photon mapping's initial radius as a fraction of the scene's extent.
     error_bounds, record_rays, cache_seeds, cache_grid: the cache's error bounds a, hemisphere
@@ -97,9 +100,9 @@ class BiasSize:
 
 
 SIZES = {
-    "tiny": BiasSize("tiny", 1 << 14, 1 << 10, 2, 4, 4000, 0.05, (0.4, 0.1), 32, 2, 16, 1 << 10),
-    "quick": BiasSize("quick", 1 << 19, 1 << 17, 4, 32, 20000, 0.05, (0.4, 0.2, 0.1, 0.05), 256, 2, 64, 1 << 15),
-    "full": BiasSize("full", 1 << 21, 1 << 19, 8, 128, 50000, 0.05, (0.4, 0.2, 0.1, 0.05, 0.025), 1024, 4, 128,
+    "tiny": BiasSize("tiny", 1 << 14, 1 << 10, 2, 4, 4000, 0.05, (1.0, 0.4), 32, 2, 16, 1 << 10),
+    "quick": BiasSize("quick", 1 << 19, 1 << 17, 4, 32, 20000, 0.05, (1.0, 0.6, 0.4, 0.2), 256, 4, 64, 1 << 15),
+    "full": BiasSize("full", 1 << 21, 1 << 19, 8, 128, 50000, 0.05, (1.0, 0.6, 0.4, 0.2, 0.1), 512, 6, 96,
                      1 << 18),
 }
 
@@ -140,6 +143,13 @@ def _camera_first_hits(ps, camera, grid: int) -> tuple[np.ndarray, np.ndarray]:
     return p[keep], n[keep]
 
 
+def t95(groups: int) -> float:
+    """Two-sided 95% Student-t quantile for the mean of ``groups`` independent estimates (nan below 2)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, groups - 1)) if groups >= 2 else math.nan
+
+
 def first_inside(inside: list[bool]) -> int | None:
     """Index of the first entry from which every later entry is True (None: the last is False)."""
     k = None
@@ -157,10 +167,10 @@ def _reference(ps, sensors: SensorArray, size: BiasSize, seed: int):
 
 
 def _unbiased_curve(ps, sensors: SensorArray, size: BiasSize, seed: int) -> list[dict]:
-    """Doubling sample counts of one unbiased run (disjoint ranges merged): per checkpoint
+    """Doubling sample counts (256 ..) of one unbiased run (disjoint ranges merged): per checkpoint
     samples, cumulative wall time, (N, 4) mean and 95% interval."""
     rows, est, done, t = [], None, 0, 0.0
-    target = 16
+    target = 256  # smaller counts' intervals (tens of %) would only flatten the figures
     while target <= size.curve_samples:
         part = unbiased_irradiance(None, sensors, target - done, seed=seed, first_sample=done,
                                    max_depth=size.max_depth, prepared=ps)
@@ -175,7 +185,8 @@ def _unbiased_curve(ps, sensors: SensorArray, size: BiasSize, seed: int) -> list
 
 def _photon_curve(ps, sensors: SensorArray, size: BiasSize, seed: int) -> tuple[list[dict], float]:
     """Photon mapping at doubling passes: per checkpoint photons emitted (all groups), the
-    cumulative time, (N, 4) mean over groups and mean +- 1.96 se across groups (noise only)."""
+    cumulative time, (N, 4) mean over groups and its 95% Student-t interval across the K groups
+    (noise only: the groups share the bias)."""
     radius0 = size.radius_fraction * ps.geom.extent
     est = photon_irradiance(None, sensors, size.photon_passes, size.photons_per_pass, radius0, seed=seed,
                             max_depth=size.max_depth, groups=size.photon_groups, prepared=ps)
@@ -183,7 +194,7 @@ def _photon_curve(ps, sensors: SensorArray, size: BiasSize, seed: int) -> tuple[
     p = 1
     while p <= size.photon_passes:
         mean, se = est.at(p)
-        half = Z95 * se if se is not None else np.full_like(mean, np.nan)
+        half = t95(size.photon_groups) * se if se is not None else np.full_like(mean, np.nan)
         rows.append({"budget": p * size.photon_groups * size.photons_per_pass, "passes": p,
                      "time_s": float(est.time_s[p - 1]), "mean": mean, "lo": mean - half, "hi": mean + half,
                      "mean_radius": float(est.radius[:, p - 1].mean())})
@@ -198,8 +209,8 @@ def _cache_curve(ps, camera, sensors: SensorArray, size: BiasSize, seed: int) ->
     at the sensors, plus direct light by the unbiased estimator cut at one bounce (max_depth 1:
     next-event estimation and the cosine lobe, ``cache_direct_samples`` per sensor, computed once).
     ``cache_seeds`` independent caches per bound. Per bound: records, wall time (direct + all
-    seeds' caches), (N, 4) mean over seeds and mean +- 1.96 se (the caches' spread and the direct
-    term's standard error). None when the cache module is missing."""
+    seeds' caches), (N, 4) mean over seeds and its 95% interval (Student t, K - 1 dof, on the
+    caches' spread plus the direct term's variance). None when the cache module is missing."""
     try:
         from render.integrators.irradiance_cache import Options as CacheOptions, build_cache
     except ImportError:
@@ -224,8 +235,9 @@ def _cache_curve(ps, camera, sensors: SensorArray, size: BiasSize, seed: int) ->
             records.append(len(cache.position))
         v = np.stack(values)
         mean = v.mean(axis=0) + direct_mean
+        # the caches' spread (K - 1 dof) dominates the direct term's standard error: Student t on the sum
         var = direct_se ** 2 + (v.var(axis=0, ddof=1) / len(v) if len(v) > 1 else np.nan)
-        half = Z95 * np.sqrt(var)
+        half = t95(len(v)) * np.sqrt(var)
         rows.append({"budget": a, "time_s": direct.stats["time_s"] + time.perf_counter() - t0, "mean": mean,
                      "lo": mean - half, "hi": mean + half, "records": float(np.mean(records)),
                      "points": int(len(points))})
@@ -245,7 +257,8 @@ def _rows_for(estimator: str, budget_kind: str, curve: list[dict], sensors: Sens
                 "E_b": float(c["mean"][i, 2]), "Y": y, "Y_lo": _finite(c["lo"][i, 3]), "Y_hi": _finite(c["hi"][i, 3]),
                 "Y_ref": float(ref_mean[i, 3]), "rel_error_pct": 100.0 * (y / ref_mean[i, 3] - 1.0),
                 "inside_ref_ci": bool(ref_lo[i, 3] <= y <= ref_hi[i, 3]),
-                "own_ci_holds_ref": _holds(c["lo"][i, 3], c["hi"][i, 3], ref_mean[i, 3])})
+                "own_ci_holds_ref": _holds(c["lo"][i, 3], c["hi"][i, 3], ref_mean[i, 3]),
+                "mean_radius": c.get("mean_radius"), "records": c.get("records")})
     return out
 
 
@@ -299,7 +312,7 @@ def error_plot(sensors: SensorArray, ref_mean, curves: dict) -> str:
     for i, name in enumerate(sensors.names):
         ref = ref_mean[i, 3]
         unb = curves["unbiased"]
-        series.append(Series(f"unbiased half-width {name}", [c["time_s"] for c in unb],
+        series.append(Series(f"unbiased CI {name}", [c["time_s"] for c in unb],
                              [100.0 * (c["hi"][i, 3] - c["mean"][i, 3]) / ref for c in unb],
                              colour=PALETTE[i % len(PALETTE)], line=True, dashed=True))
         pm = curves["photon"]
@@ -321,9 +334,13 @@ CLAIM = ("The lecture: 'very few people can tell if a render is nearly physicall
          "long an unbiased measurement needs to expose that error.")
 
 
-def _entry(curve: list[dict], i: int, ref_lo, ref_hi) -> dict:
-    """Where estimate i of a curve enters (and stays inside) the reference's 95% CI."""
-    inside = [bool(ref_lo[i, 3] <= c["mean"][i, 3] <= ref_hi[i, 3]) for c in curve]
+def _entry(curve: list[dict], i: int, ref_lo, ref_hi, ref_y: float | None = None) -> dict:
+    """Where estimate i of a curve enters, and stays inside, the reference's 95% CI (ref_y None),
+    or where its own 95% interval starts to hold the reference value ref_y for good."""
+    if ref_y is None:
+        inside = [bool(ref_lo[i, 3] <= c["mean"][i, 3] <= ref_hi[i, 3]) for c in curve]
+    else:
+        inside = [bool(_holds(c["lo"][i, 3], c["hi"][i, 3], ref_y)) for c in curve]
     k = first_inside(inside)
     return {"index": k, "budget": None if k is None else curve[k]["budget"],
             "time_s": None if k is None else round(float(curve[k]["time_s"]), 3)}
@@ -342,10 +359,12 @@ def exposure_time(unbiased_end: dict, i: int, ref_y: float, error_pct: float) ->
 def headline(sensors: SensorArray, ref, ref_lo, ref_hi, curves: dict) -> tuple[list[dict], dict]:
     """The summary's headline rows (lecture contract) and the flat metrics for the manifest.
 
-    Per biased estimator and sensor: the budget from which its estimate stays inside the
-    reference's 95% CI ("not within budget" when its last one is outside), its error at the
-    largest budget with its own 95% noise, and how long an unbiased measurement needs for its
-    95% half-width to fall below that error (from then on a light meter can tell)."""
+    Per biased estimator and sensor: the budget from which its own 95% noise interval holds the
+    reference for good (no bias measurable at its own noise; "not within budget" when the last
+    does not), the budget from which its estimate stays inside the reference's 95% CI (strict: the
+    reference's interval is far narrower), its error at the largest budget with its own noise,
+    and how long an unbiased measurement needs for its 95% half-width to fall below that error
+    (from then on a light meter can tell)."""
     ref_mean = ref.s1 / ref.n
     rows, metrics = [], {}
     half_ref = 100.0 * (ref_hi[:, 3] - ref_mean[:, 3]) / ref_mean[:, 3]
@@ -367,19 +386,29 @@ def headline(sensors: SensorArray, ref, ref_lo, ref_hi, curves: dict) -> tuple[l
         last = curve[-1]
         worst = 0.0
         for i, name in enumerate(sensors.names):
-            e = _entry(curve, i, ref_lo, ref_hi)
             y_ref = ref_mean[i, 3]
+            e = _entry(curve, i, ref_lo, ref_hi, y_ref)
+            strict = _entry(curve, i, ref_lo, ref_hi)
             err = _pct(last["mean"][i, 3], y_ref)
             noise = 100.0 * (last["hi"][i, 3] - last["mean"][i, 3]) / y_ref
             t_expose = exposure_time(unb[-1], i, y_ref, err)
             value = "not within budget" if e["budget"] is None else e["budget"]
-            rows.append({"figure": f"{label}, {name}: inside the reference's 95% CI from", "value": value,
+            if not math.isfinite(noise):
+                exposed = f"its own noise unknown (one group); an unbiased measurement's half-width falls below " \
+                          f"the error after {t_expose:.2g} s"
+            elif abs(err) > noise:
+                exposed = f"an unbiased measurement exposes it after {t_expose:.2g} s"
+            else:
+                exposed = "within its own noise: not a measured bias"
+            inside = "never" if strict["budget"] is None else f"from {strict['budget']:g} {unit}"
+            rows.append({"figure": f"{label}, {name}: no bias measurable at its own noise from", "value": value,
                          "unit": "" if e["budget"] is None else unit,
-                         "note": f"error {err:+.2f}% (own noise +-{noise:.2f}%) at {last['budget']:g} {unit}, "
-                                 f"{last['time_s']:.3g} s; an unbiased measurement exposes it after "
-                                 f"{t_expose:.2g} s"})
+                         "note": f"error {err:+.2f}% (own 95% noise +-{noise:.2f}%) at {last['budget']:g} {unit}, "
+                                 f"{last['time_s']:.3g} s; inside the reference's 95% CI: {inside}; {exposed}"})
+            metrics[f"{key}_{name}_noise_pct"] = noise if math.isfinite(noise) else -1.0
             metrics[f"{key}_{name}_error_pct"] = err
-            metrics[f"{key}_{name}_inside_from"] = -1.0 if e["budget"] is None else float(e["budget"])
+            metrics[f"{key}_{name}_consistent_from"] = -1.0 if e["budget"] is None else float(e["budget"])
+            metrics[f"{key}_{name}_inside_ref_ci_from"] = -1.0 if strict["budget"] is None else float(strict["budget"])
             metrics[f"{key}_{name}_exposed_after_s"] = t_expose if math.isfinite(t_expose) else -1.0
             worst = max(worst, abs(err))
         metrics[f"{key}_worst_error_pct"] = worst
@@ -429,7 +458,7 @@ def run(out: Path, profile: str = "quick", seed: int = 0, quiet: bool = False) -
         rows += _rows_for("cache", "error bound", curves["cache"], sensors, ref_mean, ref_lo, ref_hi)
     write_csv(out / "estimates.csv", rows, ["estimator", "sensor", "budget_kind", "budget", "time_s", "E_r", "E_g",
                                             "E_b", "Y", "Y_lo", "Y_hi", "Y_ref", "rel_error_pct", "inside_ref_ci",
-                                            "own_ci_holds_ref"])
+                                            "own_ci_holds_ref", "mean_radius", "records"])
     figures = []
     for i, name in enumerate(sensors.names):
         write_svg(out / f"bias_{name}.svg", sensor_plot(name, i, ref_mean, ref_lo, ref_hi, curves))
