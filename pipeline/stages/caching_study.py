@@ -7,7 +7,8 @@ sample) against the unbiased path tracer, on the Cornell box and on the turntabl
 restricts the effects to direct light and shadows, so interreflection is switched on here: without
 it there is nothing to cache). Per scene, at the profile's size::
 
-    a long path-traced reference (fixed seed 10^6 + seed, ``ref_spp`` samples), noise floor from its variance image
+    a long path-traced reference (``ref_spp`` samples: two independent halves, seeds 10^6 + seed
+        and 10^6 + seed + 1), noise floor from its variance image
     path at 1, 2, 4, ... spp: time and RMSE against the reference (the equal-time curve)
     the cache at each error bound a (one cache from all ``cache_spp`` samples, ``record_rays`` rays
         per record): time split into record creation (tracing the records' rays), lookup
@@ -112,6 +113,14 @@ CLAIM = ("Caching results is the other way to control the variance of LDD+E path
 EMITTER_CUT = 1.0
 
 
+@dataclass
+class _Image:
+    """A mean image (H, W, 3) and the variance of that mean (H, W, 3)."""
+
+    mean: np.ndarray
+    variance: np.ndarray
+
+
 def _rmse(img: np.ndarray, ref: np.ndarray, keep: np.ndarray) -> float:
     """RMSE over the pixels ``keep`` (H, W) bool, all channels."""
     d = img.astype(np.float64)[keep] - ref.astype(np.float64)[keep]
@@ -146,12 +155,11 @@ def _study_scene(name: str, size: StudySize, seed: int, out: Path, on_step) -> d
     ps = prepare(scene)
     ref_seed = 1_000_000 + seed
     t0 = time.perf_counter()
-    ref_settings = RenderSettings(integrator="path", spp=size.ref_spp, seed=ref_seed)
-    half = size.ref_spp // 2
-    # two independent halves (their merge is the reference): the bias test pairs each with one half of the cache
-    ref_halves = [render(scene, cam, ref_settings, rng, effects=effects, prepared=ps)
-                  for rng in ((0, half), (half, size.ref_spp))]
-    ref = merge_results(*ref_halves)
+    # two independent halves (two seeds: halves of one Sobol render are stratified together, hence
+    # correlated); the reference is their mean, and the bias test pairs each with half the cache
+    ref_halves = [render(scene, cam, RenderSettings(integrator="path", spp=size.ref_spp // 2, seed=ref_seed + i),
+                         effects=effects, prepared=ps) for i in (0, 1)]
+    ref = _Image(0.5 * (ref_halves[0].mean + ref_halves[1].mean), 0.25 * (ref_halves[0].variance + ref_halves[1].variance))
     ref_s = time.perf_counter() - t0
     write_exr(out / "scratch" / f"reference_{name}.exr", ref.mean)
     keep = ref.mean.max(axis=2) < EMITTER_CUT
