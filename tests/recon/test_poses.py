@@ -334,9 +334,14 @@ def test_board_never_visible_fails(board_hidden_capture, tmp_path):
 def test_too_few_views_registered_fails(small_capture, tmp_path):
     cap = copy_capture(small_capture, tmp_path / "capture")
     names = [c.name for c in read_cameras_json(cap / "cameras.json")[0]]
-    black = np.zeros_like(cv2.imread(str(cap / "images" / f"{names[0]}.png")))
-    for n in names[::3]:  # 7 of 20 frames lost (lens cap): no board in them
-        cv2.imwrite(str(cap / "images" / f"{n}.png"), black)
+    from skimage import data
+
+    h, w = cv2.imread(str(cap / "images" / f"{names[0]}.png")).shape[:2]
+    elsewhere = cv2.resize(data.coffee(), (w, h), interpolation=cv2.INTER_AREA)
+    # 7 of 20 frames lost (the camera pointed elsewhere): no board in them. Not black (a lens
+    # cap): the stage refuses views of a uniform background, and identical ones, as bad input
+    for i, n in enumerate(names[::3]):
+        cv2.imwrite(str(cap / "images" / f"{n}.png"), np.roll(elsewhere, 7 * i, axis=1))
     out = tmp_path / "poses" / "charuco"
     with pytest.raises(BadInput) as exc:
         run_poses(cap, "charuco", out, quiet=True)
