@@ -21,8 +21,8 @@ rotation_error_deg_{mean,median,max}, center_error_rel_{mean,max} (divided by sc
 median distance of the true camera centres from their centroid), alignment_scale, worst_view,
 reprojection_error_px, focal_rel / principal_point_px / distortion_abs_max (intrinsics error),
 self_check_folded / self_check_reason / max_azimuth_gap_deg / duplicate_pairs (no ground truth
-used), estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length and its
-options; charuco adds board_not_visible, corners_{min,mean} and aligned_* scores.
+used), estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
+options, the matcher and mapper that ran, pairs matched and {extract,match,map}_time_s; charuco adds board_not_visible, corners_{min,mean} and aligned_* scores.
 
 Failure (a method ran but its result is unusable: no model, too few views registered, no board
 ever visible, a folded turntable circle, a pose error above the gate). Both promises hold:
