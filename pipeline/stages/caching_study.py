@@ -17,7 +17,9 @@ it there is nothing to cache). Per scene, at the profile's size::
     the bias at "infinite" samples: the cache with ``bias_rays`` rays per record and ``bias_spp``
         samples in GROUPS independent caches, split in two halves c1, c2 of whole groups, against
         the reference's two halves r1, r2: bias^2 = mean over pixels of (c1 - r1)(c2 - r2), whose
-        expectation is exactly the squared bias (all four independent; clipped at 0 for bias_rms)
+        expectation is exactly the squared bias (all four independent; clipped at 0 for bias_rms),
+        with its standard error over pixels; "resolved" when above 2 standard errors (the errors
+        are heavy-tailed: an outlier record spreads over its neighbours' pixels)
 
 Every RMSE is over the pixels that see no emitter (reference radiance below EMITTER_CUT).
 
@@ -223,11 +225,15 @@ def _study_scene(name: str, size: StudySize, seed: int, out: Path, on_step) -> d
         c = merge_results(c1, c2)
         d = (c.mean.astype(np.float64) - ref.mean.astype(np.float64))[keep]
         mse = float(np.mean(d ** 2))
-        cross = float(np.mean((c1.mean.astype(np.float64)[keep] - r1) * (c2.mean.astype(np.float64)[keep] - r2)))
+        products = (c1.mean.astype(np.float64)[keep] - r1) * (c2.mean.astype(np.float64)[keep] - r2)
+        cross = float(np.mean(products))
+        # its standard error over pixels (an underestimate: a record's error spreads over its neighbours)
+        cross_se = float(np.std(products, ddof=1) / math.sqrt(products.size))
         noise2 = float(np.mean(c.variance.astype(np.float64)[keep] + ref.variance.astype(np.float64)[keep]))
         bias.append({"scene": name, "error_bound": a, "record_rays": size.bias_rays, "spp": size.bias_spp,
                      "groups": c.stats["groups"], "records": c.stats["records"], "rmse": math.sqrt(mse),
-                     "noise_rms": math.sqrt(noise2), "bias_squared": cross, "bias_rms": math.sqrt(max(0.0, cross)),
+                     "noise_rms": math.sqrt(noise2), "bias_squared": cross, "bias_squared_se": cross_se,
+                     "bias_resolved": bool(cross > 2.0 * cross_se), "bias_rms": math.sqrt(max(0.0, cross)),
                      "mean_rel_bias": float(d.mean() / max(float(ref.mean[keep].mean()), 1e-300)),
                      "time_s": c.stats["time_s"]})
         on_step(f"{name}: bias a={a:g}")
@@ -291,11 +297,15 @@ def _headline(parts: dict) -> list[dict]:
                               f"{best['cache_s']:.2f} s; caching {'pays' if best['pays'] else 'does not pay'} "
                               f"(worst a = {worst['error_bound']:g}: ratio {worst['path_over_cache']:.2f})")})
         b = part["bias"]
+        unresolved = [f"{r['error_bound']:g}" for r in b if not r["bias_resolved"]]
         rows.append({"figure": f"{name}: bias at many record rays (smallest / largest a)",
                      "value": f"{b[0]['bias_rms']:.4g} / {b[-1]['bias_rms']:.4g}", "unit": "RMS radiance",
                      "note": (f"a = {b[0]['error_bound']:g} / {b[-1]['error_bound']:g}, {b[0]['record_rays']} rays "
-                              f"per record; image-mean bias {100 * b[0]['mean_rel_bias']:+.2f}% / "
-                              f"{100 * b[-1]['mean_rel_bias']:+.2f}%; reference noise {part['ref_noise']:.3g}")})
+                              f"per record, {b[0]['spp']} spp; image-mean bias {100 * b[0]['mean_rel_bias']:+.2f}% / "
+                              f"{100 * b[-1]['mean_rel_bias']:+.2f}%; remaining noise {b[0]['noise_rms']:.3g}"
+                              + (f"; not resolved (bias^2 estimate within 2 standard errors of 0, heavy-tailed: "
+                                 f"a record's outlier spreads over its neighbours) at a = {', '.join(unresolved)}"
+                                 if unresolved else ""))})
         share = [r["create_s"] / max(r["create_s"] + r["lookup_s"], 1e-12) for r in eq]
         rows.append({"figure": f"{name}: record creation's share of the cache's time (per a)",
                      "value": " / ".join(f"{100 * s:.0f}%" for s in share), "unit": "%",
