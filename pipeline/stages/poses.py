@@ -358,6 +358,9 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
     out = Path(out)
     check_out(out, "poses", overwrite)
     cap = load_capture(capture_dir, need_targets=method == "charuco")
+    if method == "colmap" and config.colmap.matcher == "capture_order" and cap.order is None:
+        raise BadInput(f"{cap.folder / 'capture_order.json'}: no shooting order in the capture "
+                       "(needed by --matcher capture_order; capture it again, or use --matcher exhaustive)")
     params = {"method": method, "capture": str(capture_dir), **({"colmap": asdict(config.colmap)} if method == "colmap"
               else {"charuco": asdict(config.charuco)} if method == "charuco" else {}), "gates": asdict(config.gates)}
     manifest = Manifest("poses", params=params)

@@ -176,3 +176,13 @@ def test_a_failed_colmap_run_prints_one_line(repeated_capture, tmp_path):
     assert_one_line_exit_2(lumigraph("poses", repeated_capture, "--method", "colmap", "--out", out, "--quiet"),
                            "poses colmap:", "metrics.json")
     assert json.loads((out / "metrics.json").read_text())["status"] == "failed"
+
+
+def test_capture_order_matcher_without_the_order_is_bad_input(small_capture, tmp_path):
+    cap = tmp_path / "capture"
+    shutil.copytree(small_capture, cap)
+    (cap / "capture_order.json").unlink()  # a capture made before the file existed
+    out = tmp_path / "poses" / "colmap"
+    assert_one_line_exit_2(lumigraph("poses", cap, "--method", "colmap", "--matcher", "capture_order", "--out", out,
+                                     "--quiet"), "capture_order.json", "--matcher capture_order")
+    assert not (tmp_path / "poses").exists()
