@@ -100,13 +100,15 @@ def size_name(profile: str) -> str:
     return profile
 
 
-CLAIM = ("Caching results is the other way to control the variance of LDD+E paths: Ward's irradiance cache "
-         "traces many rays at sparse records and interpolates their indirect irradiance within an error bound a, "
-         "trading noise for bias. Measured against a long path-traced reference, at equal wall time with "
-         "unbiased path tracing, it pays where indirect light is a large, smooth part of the image and the "
-         "pixels per record are many (large images, large a); it does not pay where records are nearly as "
-         "many as pixels (small images, small a) or where direct light dominates the noise. Its bias does not "
-         "vanish with more record rays: it falls only as a goes to 0, where the cache is the path tracer again.")
+CLAIM = ("Caching results is the other way to control the variance of LDD+E paths (the slide's 'OR cache "
+         "results'): Ward's irradiance cache traces many rays at sparse records and interpolates their indirect "
+         "irradiance within an error bound a, trading noise for bias. Tested here against a long path-traced "
+         "reference, at equal wall time with unbiased path tracing: caching can pay only where indirect light "
+         "is a large part of the noise and records are far fewer than pixels (large images, large a); where "
+         "records approach the pixel count (small images, small a) their rays cost what path tracing's would, "
+         "and where direct light or anti-aliasing dominates the noise (the turntable's spot lights and "
+         "textures) the cache, which leaves direct light per sample, cannot beat path. Its bias does not fall "
+         "with more record rays, only as a goes to 0, where the cache is the path tracer again.")
 
 
 #: pixels whose reference radiance reaches this in some channel see an emitter (the Cornell light's
