@@ -10,9 +10,9 @@ direction as 2-D pairs, the light pick, Fresnel lobe, roulette and spare as 1-D;
 pick the light with the light point's first number and rescale it, so the pick dimension goes
 unused and each light's points stay stratified), and every group
 draws Sobol dimensions 0 and 1 (Joe and Kuo's direction numbers, scipy's table; a (0, 2)-sequence)
-at an index that is itself Owen-scrambled per group (a nested permutation of the index bits maps
-every aligned block of 2^m indices onto an aligned block, so each 2^m prefix stays a net and
-groups are decorrelated without knowing the sample count), then the value is Owen-scrambled per
+at an index that is itself Owen-scrambled per group (a nested permutation of the index bits,
+XORed by its image of 0, maps every prefix [0, 2^m) onto itself, so each 2^m prefix stays a net
+and groups are decorrelated without knowing the sample count), then the value is Owen-scrambled per
 (group, component).
 
 Replicates. For each pixel, the samples are split into ``REPLICATES`` interleaved replicates:
@@ -168,7 +168,11 @@ def sobol_uniform(keys: np.ndarray, dim: int) -> np.ndarray:
     g, c = (int(x) for x in dimension_group(int(dim)))
     h_index = _mix64((keys & _HI32) + np.uint64((g + 1) * 0x9E3779B97F4A7C15 & 0xFFFFFFFFFFFFFFFF))
     h_value = _mix64(h_index ^ np.uint64((c + 1) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF))
-    v = owen_scramble(sobol_u32(nested_scramble(keys & _MASK32, h_index), c), h_value)
+    # the index shuffle, XORed by its image of 0: still nested, and it maps [0, 2^m) onto itself,
+    # so shuffled indices stay as small as the index (fewer set bits for the Sobol XOR loop)
+    zero = np.zeros_like(keys)
+    j = nested_scramble(keys & _MASK32, h_index) ^ nested_scramble(zero, h_index)
+    v = owen_scramble(sobol_u32(j, c), h_value)
     return v.astype(np.float64) * (1.0 / 4294967296.0)
 
 

@@ -27,7 +27,7 @@ per worker against MemAvailable).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -180,8 +180,8 @@ class ReferenceConfig:
     seed: int = 0
     #: maximum bounces
     max_depth: int = 8
-    #: random numbers of path / direct: "sobol" or "independent" (render.sobol); None: the
-    #: integrator's default (sobol); refused by integrators that do not read it
+    #: random numbers of path / direct: "sobol" or "independent" (render.sobol); None: sobol
+    #: where the chosen integrator reads a sampler; given explicitly to one that does not: refused
     sampler: str | None = None
 
 
@@ -221,6 +221,9 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     except ValueError as exc:
         raise BadInput(f"--integrator: {exc}") from None
     settings = replace(settings, integrator=chosen_integrator)
+    reads_sampler = "sampler" in {f.name for f in fields(integrators.INTEGRATOR_OPTIONS[chosen_integrator])}
+    if config.sampler is None and reads_sampler:
+        settings = replace(settings, sampler="sobol")  # the stage's default: low-discrepancy where it applies
     try:  # an option the chosen integrator does not read is refused here, before any work
         options = settings.options(chosen_integrator, integrators.INTEGRATOR_OPTIONS[chosen_integrator])
     except ValueError as exc:

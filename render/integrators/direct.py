@@ -31,8 +31,9 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
-    #: random numbers: "sobol" (Owen-scrambled Sobol, render.sobol) or "independent" (hash)
-    sampler: str = "sobol"
+    #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
+    #: variance, render.sobol; the reference stage's default)
+    sampler: str = "independent"
 
     def __post_init__(self):
         check_strategy(self.strategy)

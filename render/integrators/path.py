@@ -36,12 +36,13 @@ specular vertices (from an emitter or the background) is dropped: the pruned ren
 the listed effects and nothing more.
 
 Random numbers are a pure function of (seed, pixel, sample index, dimension), so renders of
-disjoint sample ranges merge exactly (:func:`render.film.merge_results`): by default
-Owen-scrambled Sobol points (``sampler="sobol"``, :mod:`render.sobol`; sample s of a pixel is
-point s div R of its replicate s mod R, and the variance image comes from the R = 16 replicate
-means, :meth:`render.film.Film.variance`), or an independent hash per dimension
-(``sampler="independent"``, :mod:`render.sampling`; the variance image is the sample variance
-over n).
+disjoint sample ranges merge exactly (:func:`render.film.merge_results`): an independent hash
+per dimension (``sampler="independent"``, the library default, :mod:`render.sampling`; the
+variance image is the sample variance over n), or Owen-scrambled Sobol points (``sampler="sobol"``,
+:mod:`render.sobol`, the ``reference`` stage's default; sample s of a pixel is point s div R of
+its replicate s mod R, and the variance image comes from the R = 16 replicate means,
+:meth:`render.film.Film.variance`: R - 1 degrees of freedom per pixel, so per-pixel Z-tests
+against it need Student-t thresholds).
 """
 from __future__ import annotations
 
@@ -80,8 +81,9 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
-    #: random numbers: "sobol" (Owen-scrambled Sobol, render.sobol) or "independent" (hash)
-    sampler: str = "sobol"
+    #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
+    #: variance, render.sobol; the reference stage's default)
+    sampler: str = "independent"
 
     def __post_init__(self):
         check_strategy(self.strategy)
@@ -100,7 +102,7 @@ def kernel_scene_of(ps: PreparedScene) -> KernelScene:
 
 
 def path_config(ps: PreparedScene, max_depth: int, strategy: str, heuristic: str, roulette: bool, rr_depth: int,
-                direct: bool, caustics: bool, sampler: str = "sobol") -> PathConfig:
+                direct: bool, caustics: bool, sampler: str = "independent") -> PathConfig:
     """The kernels' :class:`render.integrators.path_kernels.PathConfig` for ``ps`` (roulette is
     ignored when ``direct``: its paths end at the first diffuse vertex; sampler: a name of
     render.sobol.SAMPLERS)."""
@@ -207,12 +209,12 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     """The wavefront driver of ``path`` and ``direct``: batches of ``settings.batch_paths`` camera
     samples over ``settings.threads`` threads, accumulated in batch order (the same sums
     whatever the threads). options: a path or direct ``Options`` (an options type without
-    ``sampler`` gets the Sobol sampler). The Sobol sampler's film also keeps per-replicate sums
+    ``sampler`` gets the independent sampler). The Sobol sampler's film also keeps per-replicate sums
     (:class:`render.film.Film`), so its variance image is the replicates'."""
     t0 = time.perf_counter()
     a, b = sample_range
     roulette, rr_depth = (False, 0) if direct else (options.roulette, options.rr_depth)
-    sampler = getattr(options, "sampler", "sobol")
+    sampler = getattr(options, "sampler", "independent")
     cfg = path_config(ps, settings.max_depth, options.strategy, options.heuristic, roulette, rr_depth, direct,
                       "caustics" in effects, sampler)
     query_emitters = direct and ps.emit_accel is not None and options.strategy != "light"

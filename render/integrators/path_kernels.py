@@ -182,14 +182,17 @@ def _sobol(key, dim):
         comp = 1
     h_index = _mix64((key & _HI32) + np.uint64(dim - comp + 1) * _GOLDEN)
     h_value = _mix64(h_index ^ (np.uint64(comp + 1) * _M1))
-    j = _nested(key & _MASK32, h_index)
+    j = _nested(key & _MASK32, h_index) ^ _nested(_U0, h_index)  # maps [0, 2^m) onto itself
     if comp == 0:  # van der Corput: the reversed index
         v = _reverse32(j)
-    else:
+    else:  # Sobol dimension 1, over the index's set bits only (j < 2^m: m iterations)
         v = _U0
-        for k in range(32):
-            if ((j >> np.uint64(k)) & _U1) != _U0:
+        k = 0
+        while j != _U0:
+            if (j & _U1) != _U0:
                 v ^= _SOBOL_V1[k]
+            j >>= _U1
+            k += 1
     x = _nested(v, h_value) ^ (h_value >> _U32)
     return np.float64(x) * _INV_2_32
 
@@ -228,7 +231,7 @@ class PinholeCamera(NamedTuple):
 
 @njit(**_JIT)
 def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit,
-                       sampler=SAMPLER_SOBOL):
+                       sampler=SAMPLER_INDEPENDENT):
     """Camera samples of flat indices [start, stop): flat = (sample - sample0) * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a
@@ -388,7 +391,7 @@ class PathConfig(NamedTuple):
     mis_on_hits: bool  #: emission found by BSDF rays is MIS-weighted against light sampling
     continue_diffuse: bool  #: diffuse vertices sample a BSDF ray (false: `direct` with light sampling alone)
     has_area: bool  #: the scene has area lights
-    sampler: int = SAMPLER_SOBOL  #: SAMPLER_SOBOL (render.sobol) or SAMPLER_INDEPENDENT (the hash)
+    sampler: int = SAMPLER_INDEPENDENT  #: SAMPLER_INDEPENDENT (the hash) or SAMPLER_SOBOL (render.sobol)
 
 
 @njit(inline="always", **_JIT)

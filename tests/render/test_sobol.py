@@ -4,6 +4,8 @@ ranges, error falling faster than n^-1/2 on a smooth integrand, and variance ima
 honest (the replicate estimator against a closed form). Fixed seeds throughout."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -89,9 +91,10 @@ def test_disjoint_sample_ranges_merge_exactly():
     sizes and threads): float32 mean and variance bytewise, float64 moments to rounding."""
     sc, cam, _ = _area_light_probe(8)
     ps = prepare(sc)
-    whole = render(sc, cam, RenderSettings(integrator="path", spp=40, seed=5), prepared=ps)
-    a = render(sc, cam, RenderSettings(integrator="path", seed=5, threads=1, batch_paths=100), (0, 11), prepared=ps)
-    b = render(sc, cam, RenderSettings(integrator="path", seed=5, threads=2, batch_paths=37), (11, 40), prepared=ps)
+    st = RenderSettings(integrator="path", spp=40, seed=5, sampler="sobol")
+    whole = render(sc, cam, st, prepared=ps)
+    a = render(sc, cam, replace(st, threads=1, batch_paths=100), (0, 11), prepared=ps)
+    b = render(sc, cam, replace(st, threads=2, batch_paths=37), (11, 40), prepared=ps)
     merged = merge_results(a, b)
     assert merged.mean.tobytes() == whole.mean.tobytes()
     assert merged.variance.tobytes() == whole.variance.tobytes()
@@ -132,7 +135,7 @@ def test_variance_image_is_the_replicates_and_honest():
     errors of that mean over the 256 pixels (alpha ~ 6e-5), and a KS test against t at 1e-4. The sample variance over n would
     overestimate here by an order of magnitude (mean z^2 << 1)."""
     sc, cam, truth = _area_light_probe(16)
-    r = render(sc, cam, RenderSettings(integrator="direct", spp=256, seed=9, strategy="light"))
+    r = render(sc, cam, RenderSettings(integrator="direct", spp=256, seed=9, strategy="light", sampler="sobol"))
     # one channel: the three are the same paths times LE, so their z are equal
     err = (r.mean[..., 0].astype(np.float64) - truth[0]).ravel()
     z2 = err ** 2 / r.variance[..., 0].astype(np.float64).ravel()
