@@ -163,7 +163,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     out = out or capture_dir.parent / "slab"
     m = run_slab(capture_dir, poses, out, cfg, reference, quiet, _cluster(scheduler, workers), overwrite=overwrite)
     mt = m["metrics"]
-    typer.echo(f"slab: {mt['mode']} PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} -> {out}")
+    typer.echo(f"slab: {mt['mode']} display PSNR {mt['display_psnr_mean']:.2f} dB SSIM {mt['display_ssim_mean']:.4f} "
+               f"(linear PSNR {mt['linear_psnr_mean']:.2f} dB) -> {out}")
 
 
 @app.command()
@@ -190,8 +191,10 @@ def nerf(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     m = run_nerf(capture_dir, poses, out, cfg, reference, resume=resume, quiet=quiet,
                  cluster=_cluster(scheduler, workers), overwrite=overwrite)
     mt = m["metrics"]
-    typer.echo(f"nerf {model}: PSNR {mt['psnr_mean']:.2f} dB SSIM {mt['ssim_mean']:.4f} after {mt['steps']} steps "
-               f"in {mt['train_s']:.0f} s -> {out}")
+    typer.echo(f"nerf {model}: display PSNR {mt['display_psnr_mean']:.2f} dB SSIM {mt['display_ssim_mean']:.4f} "
+               f"(linear PSNR {mt['linear_psnr_mean']:.2f} dB) after {mt['steps']} steps in {mt['train_s']:.0f} s"
+               + (f", stage {mt['stage_s']:.0f} s of a {mt['budget_s']:.0f} s budget" if "stage_s" in mt else "")
+               + f" -> {out}")
 
 
 @app.command()
@@ -208,7 +211,9 @@ def validate(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts
     run_validate(artifacts_dir, out, quiet=quiet, overwrite=overwrite)
     models = read_json(out / "metrics.json")["models"]
     for name, row in models.items():
-        typer.echo(f"validate: {name:24s} PSNR {row['psnr_mean']:6.2f} dB  SSIM {row['ssim_mean']:.4f}  "
+        flip = "–" if row["flip_ldr_mean"] is None else f"{row['flip_ldr_mean']:.4f}"
+        typer.echo(f"validate: {name:24s} display PSNR {row['display_psnr_mean']:6.2f} dB  SSIM "
+                   f"{row['display_ssim_mean']:.4f}  ꟻLIP {flip}  linear PSNR {row['linear_psnr_mean']:6.2f} dB  "
                    f"end to end {row['end_to_end_s']:.0f} s")
     typer.echo(f"validate: {len(models)} models -> {out}")
 

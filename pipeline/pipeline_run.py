@@ -100,8 +100,8 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
                          f"{mt['rotation_error_deg_mean']:.4f} deg mean, {m['wall_time_s']:.1f} s")
 
         def slab_line(label: str, m: dict) -> str:
-            return (f"{label:10s} {m['metrics']['mode']}: PSNR {m['metrics']['psnr_mean']:.2f} dB, "
-                    f"SSIM {m['metrics']['ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
+            return (f"{label:10s} {m['metrics']['mode']}: display PSNR {m['metrics']['display_psnr_mean']:.2f} dB, "
+                    f"SSIM {m['metrics']['display_ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
 
         layout = slab_layout_for(rig, params)
         m = run_slab(cap, None, stage_dir(name, "slab", root), SlabStageConfig(layout=layout), reference_dir=ref,
@@ -117,7 +117,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
                          NerfStageConfig(nerf_model, nerf_minutes, seed=seed or 0), ref, quiet=quiet, cluster=eng,
                          overwrite=overwrite)
             mt = m["metrics"]
-            lines.append(f"nerf       {nerf_model}: PSNR {mt['psnr_mean']:.2f} dB, SSIM {mt['ssim_mean']:.4f}, "
+            lines.append(f"nerf       {nerf_model}: display PSNR {mt['display_psnr_mean']:.2f} dB, SSIM {mt['display_ssim_mean']:.4f}, "
                          f"{mt['steps']} steps, {m['wall_time_s']:.1f} s")
         m = run_validate(stage_dir(name, "", root), quiet=quiet, overwrite=overwrite)
         best = m["metrics"]["best"]

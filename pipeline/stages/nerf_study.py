@@ -5,9 +5,10 @@
         [--run colmap=fast@artifacts/turntable/poses/colmap] [--reference DIR]
 
 Each ``--run`` is ``[label=]model[@poses_dir]``. Writes ``DIR/curves.csv`` (label, model, poses,
-step, train_s, wall_s, psnr), ``DIR/curves.svg`` (held-out PSNR against training minutes, one
-line per run, plus the public factored-grid CPU reference points as a separate series; drawn by
-:mod:`pipeline.plot`) and ``DIR/summary.json`` (final held-out PSNR per run, the settings).
+step, train_s, wall_s, display_psnr, linear_psnr), ``DIR/curves.svg`` (held-out display PSNR, 8-bit
+sRGB as the public figures are, against training minutes, one line per run, plus the public
+factored-grid CPU reference points as a separate series; drawn by :mod:`pipeline.plot`) and
+``DIR/summary.json`` (final held-out display PSNR per run, the settings).
 """
 from __future__ import annotations
 
@@ -25,13 +26,13 @@ __all__ = ["curves_plot", "write_nerf_study", "main"]
 
 
 def curves_plot(curves: dict[str, list[dict]], title: str) -> str:
-    """SVG: held-out PSNR (dB) against training minutes, one line per label, and
+    """SVG: held-out display PSNR (dB, 8-bit sRGB) against training minutes, one line per label, and
     :data:`recon.nerf.study.PUBLIC_REFERENCE` as unjoined points."""
-    series = [Series(label, [r["train_s"] / 60.0 for r in c], [r["psnr"] for r in c], line=True)
+    series = [Series(label, [r["train_s"] / 60.0 for r in c], [r["display_psnr"] for r in c], line=True)
               for label, c in curves.items()]
     series.append(Series("public factored-grid CPU reference", [m for m, _ in PUBLIC_REFERENCE],
                          [p for _, p in PUBLIC_REFERENCE], colour="#000000"))
-    return svg_plot(series, "training minutes (2 CPU cores)", "held-out PSNR (dB)", title)
+    return svg_plot(series, "training minutes (2 CPU cores)", "held-out display PSNR (dB)", title)
 
 
 def write_nerf_study(out: Path, study: NerfStudy) -> None:
@@ -40,7 +41,7 @@ def write_nerf_study(out: Path, study: NerfStudy) -> None:
     out.mkdir(parents=True, exist_ok=True)
     write_csv(out / "curves.csv", study.rows, CURVES_COLUMNS, float_format=None)
     w, h = study.working_size
-    write_svg(out / "curves.svg", curves_plot(study.curves, f"NeRF held-out PSNR vs time, {w}x{h}"))
+    write_svg(out / "curves.svg", curves_plot(study.curves, f"NeRF held-out display PSNR vs time, {w}x{h}"))
     write_json(out / "summary.json", {"minutes": study.minutes, "clock": study.clock, "downsample": study.downsample,
                                       "runs": study.summary})
 

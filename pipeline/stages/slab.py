@@ -8,8 +8,9 @@ Layout (DESIGN.md)::
     slab/modes/<mode>/<view>.png           previews of every interpolation mode (Fig. 13)
     slab/compressed/                       the slab set vector-quantized (render.lightfield.storage; when
                                            ``compress``), and renders_vq/<view>.png from it
-    slab/metrics.json                      PSNR / SSIM per view and per mode, coverage, sizes,
-                                           compression ratio and its PSNR cost
+    slab/metrics.json                      display PSNR / SSIM (8-bit sRGB) and linear PSNR per view
+                                           and per mode, coverage, sizes, compression ratio and its
+                                           display PSNR cost (ꟻLIP and the subject's figures: validate)
     slab/manifest.json
 
 Split between layers: this stage reads the capture (images, depth, cameras: the layout is
@@ -44,7 +45,7 @@ from recon.slab import (SourceView, DirectConfig, LayoutConfig, RebinConfig, VQC
                         compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
 from render.image_io import write_exr, write_png, write_preview
-from render.metrics import psnr, ssim
+from render.metrics import psnr, ssim, to_display
 from render.lightfield import MODES, LightSlab, load_slabs, render_pinhole, save_slabs, slab_file_bytes
 
 from ..artifacts import MANIFEST, BadInput, Manifest, atomic_stage, check_out, read_json, write_json
@@ -283,14 +284,19 @@ def _background(views: list[SourceView]) -> np.ndarray:
 def score_slab_view(slabs: list[LightSlab], cam: Camera, ref: np.ndarray, modes=MODES, background=(0.0, 0.0, 0.0),
                   ssim_modes=None) -> dict:
     """One unit of work: ``cam``'s view rendered from ``slabs`` in every mode and scored against
-    ``ref``: {mode: (metrics {"psnr"[, "ssim"]}, image, render seconds)}."""
+    ``ref``: {mode: (metrics {"display_psnr"[, "display_ssim"], "linear_psnr"}, image, render seconds)}:
+    display figures of the 8-bit sRGB images (:func:`render.metrics.to_display`), linear PSNR of
+    the radiance clipped to [0, 1]."""
     out = {}
     for mode in modes:
         t0 = time.perf_counter()
         img = render_pinhole(slabs, cam, mode, background)
         t = time.perf_counter() - t0
         with_ssim = ssim_modes is None or mode in ssim_modes
-        out[mode] = ({"psnr": psnr(img, ref), **({"ssim": ssim(img, ref)} if with_ssim else {})}, img, t)
+        shown, shown_ref = to_display(img), to_display(ref)
+        out[mode] = ({"display_psnr": psnr(shown, shown_ref),
+                      **({"display_ssim": ssim(shown, shown_ref)} if with_ssim else {}),
+                      "linear_psnr": psnr(img, ref)}, img, t)
     return out
 
 
@@ -298,10 +304,11 @@ def score_slab_views(slabs: list[LightSlab], cameras: list[Camera], references: 
                    modes=MODES, background=(0.0, 0.0, 0.0), ssim_modes=None, cluster: Cluster = None,
                    on_view=None) -> tuple[dict, dict]:
     """Render every camera in every mode; returns ``(metrics per mode, images per mode)`` with
-    metrics {mode: {"per_view": {view: {"psnr", "ssim"}}, "psnr_mean", "ssim_mean", "render_s_per_view"}}.
+    metrics {mode: {"per_view": {view: {"display_psnr", "display_ssim", "linear_psnr"}}, "display_psnr_mean",
+    "display_ssim_mean", "linear_psnr_mean", "render_s_per_view"}}.
 
-    SSIM is computed for ``ssim_modes`` only (None: every mode; elsewhere "ssim" is absent and
-    "ssim_mean" None): at 1280x960 one SSIM (render.metrics, float64) costs ~3 CPU seconds, a
+    SSIM is computed for ``ssim_modes`` only (None: every mode; elsewhere "display_ssim" is absent
+    and "display_ssim_mean" None): at 1280x960 one SSIM (render.metrics, float64) costs ~3 CPU seconds, a
     render from the slabs ~0.3. One view per unit of work (:func:`score_slab_view`) on ``cluster``
     (None: in this process), the slab set shared once; ``on_view()`` as each view is done."""
     modes = tuple(modes)
@@ -323,8 +330,10 @@ def score_slab_views(slabs: list[LightSlab], cameras: list[Camera], references: 
         per_view = {cam.name: r[mode][0] for cam, r in zip(cameras, done)}
         t = sum(r[mode][2] for r in done)
         metrics[mode] = {"per_view": per_view,
-                         "psnr_mean": float(np.mean([m["psnr"] for m in per_view.values()])),
-                         "ssim_mean": float(np.mean([m["ssim"] for m in per_view.values()])) if with_ssim else None,
+                         "display_psnr_mean": float(np.mean([m["display_psnr"] for m in per_view.values()])),
+                         "display_ssim_mean": float(np.mean([m["display_ssim"] for m in per_view.values()]))
+                         if with_ssim else None,
+                         "linear_psnr_mean": float(np.mean([m["linear_psnr"] for m in per_view.values()])),
                          "render_s_per_view": t / max(len(cameras), 1)}
         images[mode] = {cam.name: r[mode][1] for cam, r in zip(cameras, done)}
     return metrics, images
@@ -351,8 +360,10 @@ def _compress(slabs: list[LightSlab], test: list[Camera], refs: list[np.ndarray]
             "ratio_vs_float32": stats.float32_bytes / stored,      # radiance: our float32 arrays -> stored VQ
             "ratio_vs_rgb8": 3 * stats.rays / stored,               # the paper's baseline: 24-bit RGB per ray
             "lossless_ratio": stats.codes_bytes / max(files["codes"], 1),  # the LZMA stage on the indices
-            "psnr": {m: m_vq[m]["psnr_mean"] for m in modes}, "ssim": m_vq[config.mode]["ssim_mean"],
-            "psnr_cost": {m: by_mode[m]["psnr_mean"] - m_vq[m]["psnr_mean"] for m in modes},
+            "display_psnr": {m: m_vq[m]["display_psnr_mean"] for m in modes},
+            "display_ssim": m_vq[config.mode]["display_ssim_mean"],
+            "linear_psnr": {m: m_vq[m]["linear_psnr_mean"] for m in modes},
+            "display_psnr_cost": {m: by_mode[m]["display_psnr_mean"] - m_vq[m]["display_psnr_mean"] for m in modes},
             "per_view": m_vq[config.mode]["per_view"]}
 
 
@@ -405,16 +416,20 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
                 write_preview(tmp / "modes" / mode / f"{cam.name}.png", images[mode][cam.name])
         primary = by_mode[config.mode]
         compression = _compress(slabs, test, refs, bg, by_mode, config, tmp, quiet, eng) if config.compress else None
-        metrics = {"mode": config.mode, "method": config.method, "reference": ref_kind,
-                   "per_view": primary["per_view"], "psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
+        metrics = {"display_psnr_mean": primary["display_psnr_mean"], "display_ssim_mean": primary["display_ssim_mean"],
+                   "linear_psnr_mean": primary["linear_psnr_mean"], "mode": config.mode, "method": config.method,
+                   "reference": ref_kind, "per_view": primary["per_view"],
                    "modes": by_mode, "build": info, **({"compression": compression} if compression else {})}
         write_json(tmp / "metrics.json", metrics)
-        manifest.metrics = {"psnr_mean": primary["psnr_mean"], "ssim_mean": primary["ssim_mean"],
+        manifest.metrics = {"display_psnr_mean": primary["display_psnr_mean"],
+                            "display_ssim_mean": primary["display_ssim_mean"],
+                            "linear_psnr_mean": primary["linear_psnr_mean"],
                             "mode": config.mode, "slab_bytes": info["bytes"], "build_s": info["build_s"],
                             **({"coverage": info["coverage"]} if "coverage" in info else {}),
-                            **{f"psnr_{m}": by_mode[m]["psnr_mean"] for m in MODES},
+                            **{f"display_psnr_{m}": by_mode[m]["display_psnr_mean"] for m in MODES},
                             **({"vq_ratio_vs_float32": compression["ratio_vs_float32"],
-                                "vq_psnr_cost": compression["psnr_cost"][config.mode]} if compression else {}),
+                                "vq_display_psnr_cost": compression["display_psnr_cost"][config.mode]}
+                               if compression else {}),
                             "engine": eng.name, "workers": eng.workers}
         result = manifest.write(tmp)
     return result

@@ -1,13 +1,14 @@
-"""What accuracy costs: slab resolution x interpolation mode -> PSNR, SSIM, memory, render time.
+"""What accuracy costs: slab resolution x interpolation mode -> display PSNR, SSIM, memory, render time.
 
 One command builds the slab set of a capture at every (uv_res, st_res) of a grid (direct
 acquisition by default, or rebinning), renders the held-out views in every interpolation mode,
 and writes::
 
-    <out>/study.csv      one row per (uv_res, st_res, mode): psnr, ssim (the stage's primary mode
-                         only: SSIM costs ~10x a render at 1280x960), slab MB, render ms at the
+    <out>/study.csv      one row per (uv_res, st_res, mode): display_psnr (8-bit sRGB), display_ssim
+                         (the stage's primary mode only: SSIM costs ~10x a render at 1280x960),
+                         linear_psnr, slab MB, render ms at the
                          capture size and at 256x256 (wall, and CPU over both threads), build s
-    <out>/study.svg      PSNR against slab memory, one line per interpolation mode
+    <out>/study.svg      display PSNR against slab memory, one line per interpolation mode
     <out>/study.json     the same rows plus the machine and the grid
     <out>/manifest.json
 
@@ -55,16 +56,16 @@ def _ms_256(slabs, cam: Camera, mode: str, repeats: int = 3) -> tuple[float, flo
 
 
 def memory_plot(rows: list[dict]) -> str:
-    """SVG (:func:`pipeline.plot.svg_plot`): mean held-out PSNR (dB) against slab memory (MB, log
+    """SVG (:func:`pipeline.plot.svg_plot`): mean held-out display PSNR (dB) against slab memory (MB, log
     scale), one line per (interpolation mode, uv resolution) along which st grows; one colour per mode."""
     series = []
     for mode in MODES:
         for uv in sorted({r["uv_res"] for r in rows if r["mode"] == mode}):
-            pts = sorted((r["slab_mb"], r["psnr"], r["st_res"]) for r in rows if r["mode"] == mode and r["uv_res"] == uv)
+            pts = sorted((r["slab_mb"], r["display_psnr"], r["st_res"]) for r in rows if r["mode"] == mode and r["uv_res"] == uv)
             series.append(Series(f"{mode} uv{uv}", [p[0] for p in pts], [p[1] for p in pts], [f"st{p[2]}" for p in pts],
                                  colour=MODE_COLOURS.get(mode, "#000000"), line=True))
-    return svg_plot(series, "slab memory (MB)", "mean PSNR of held-out views (dB)",
-                    "light slab: PSNR against memory per interpolation mode", logx=True)
+    return svg_plot(series, "slab memory (MB)", "mean display PSNR of held-out views (dB)",
+                    "light slab: display PSNR against memory per interpolation mode", logx=True)
 
 
 def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAULT_ST,
@@ -90,7 +91,10 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
                 for mode in MODES:
                     wall_ms, cpu_ms = _ms_256(slabs, test[0], mode)
                     rows.append({"uv_res": int(uv), "st_res": int(st), "mode": mode,
-                                 "psnr": round(metrics[mode]["psnr_mean"], 4), "ssim": "" if metrics[mode]["ssim_mean"] is None else round(metrics[mode]["ssim_mean"], 5),
+                                 "display_psnr": round(metrics[mode]["display_psnr_mean"], 4),
+                                 "display_ssim": "" if metrics[mode]["display_ssim_mean"] is None
+                                 else round(metrics[mode]["display_ssim_mean"], 5),
+                                 "linear_psnr": round(metrics[mode]["linear_psnr_mean"], 4),
                                  "slab_mb": round(info["bytes"] / 2**20, 2),
                                  "radiance_mb": round(info["radiance_bytes"] / 2**20, 2),
                                  "render_ms_view": round(metrics[mode]["render_s_per_view"] * 1e3, 1),
@@ -99,15 +103,15 @@ def run_slab_study(capture_dir: Path, out: Path, uv_res=DEFAULT_UV, st_res=DEFAU
                 del slabs
                 shutil.rmtree(scratch)
                 if not quiet:
-                    best = max((r for r in rows if r["uv_res"] == uv and r["st_res"] == st), key=lambda r: r["psnr"])
+                    best = max((r for r in rows if r["uv_res"] == uv and r["st_res"] == st), key=lambda r: r["display_psnr"])
                     print(f"slab study uv{uv} st{st}: {rows[-1]['slab_mb']:.0f} MB, best {best['mode']} "
-                          f"{best['psnr']:.2f} dB, build {info['build_s']:.1f} s", flush=True)
+                          f"display PSNR {best['display_psnr']:.2f} dB, build {info['build_s']:.1f} s", flush=True)
         write_csv(tmp / "study.csv", rows, list(rows[0]))
         write_svg(tmp / "study.svg", memory_plot(rows))
         write_json(tmp / "study.json", {"rows": rows, "uv_res": list(uv_res), "st_res": list(st_res),
                                         "reference": ref_kind, "views": [c.name for c in test]})
         manifest.metrics = {"grid_points": len(uv_res) * len(st_res),
-                            "best": max(rows, key=lambda r: r["psnr"])}
+                            "best": max(rows, key=lambda r: r["display_psnr"])}
         result = manifest.write(tmp)
     return result
 

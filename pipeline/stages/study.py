@@ -4,8 +4,9 @@ One command sweeps each stage's accuracy knob on a scene, measures the wall time
 and its error against a high-sample reference of the same held-out views, and draws the Pareto
 fronts (the settings no other setting beats in both time and accuracy)::
 
-    study/study.csv            one row per setting: stage, family, setting, time_s, psnr, ssim,
-                               psnr_truth_est, rotation_error_deg (poses), end_to_end_s, pareto
+    study/study.csv            one row per setting: stage, family, setting, time_s, display_psnr,
+                               display_ssim (8-bit sRGB), linear_psnr, display_psnr_truth_est,
+                               psnr_truth_est (linear), rotation_error_deg (poses), end_to_end_s, pareto
     study/study.json           the rows, the fronts, the profile, the machine
     study/pareto.csv           the Pareto-optimal rows of each stage and end to end
     study/pareto_<stage>.svg   accuracy against time per stage; pareto_end_to_end.svg
@@ -22,7 +23,11 @@ every held-out view, NeRF models for 1 to 10 minutes):
 * nerf (when the NeRF stage exists): model x training minutes;
 * end to end: every way to a model of the held-out views — slab direct (each grid point and
   mode), slab rebinned on each pose estimate, NeRF — with time = capture + poses (when
-  estimated) + the model stage, and PSNR against the study's reference.
+  estimated) + the model stage, and display PSNR against the study's reference.
+
+Accuracy is display PSNR (the 8-bit sRGB images', as the field reports it: the fronts' y axis),
+at the reference's resolution (the NeRF's held-out renders as written, at the capture's size);
+linear PSNR is kept as a column. ꟻLIP is the validate stage's (seconds per view and model).
 
 The study's scene is the given one with its image size scaled (``size_scale``) and its held-out
 rings cut to ``test_views`` cameras (quick profile): a derived YAML in the work folder (relative
@@ -46,6 +51,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from render.metrics import display_noise_mse, mse_to_psnr
 
 from ..artifacts import BadInput, Manifest, atomic_stage, check_out, read_json, write_json
 from ..io import read_image, write_csv
@@ -142,25 +149,27 @@ def derived_scene(scene: str | Path, folder: Path, size_scale: float, test_views
 
 
 def _score(images: dict[str, np.ndarray], truth: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict:
-    """Mean psnr, ssim, psnr_truth_est of renders (view -> (H, W, 3)) against the study reference."""
+    """Mean display_psnr, display_ssim, linear_psnr, display_psnr_truth_est, psnr_truth_est of
+    renders (view -> (H, W, 3)) against the study reference (validate's compare_view, no ꟻLIP)."""
     rows = []
     for v, (ref, var) in truth.items():
         img = images[v]
         r, s, _ = reference_at(ref, var, img.shape, Path(v))
-        rows.append(compare_view(img, r, s, ValidateConfig()))
+        rows.append(compare_view(img, r, s, ValidateConfig(flip=False)))
 
     def mean(key):
         vals = [m[key] for m in rows if m[key] is not None]
         return float(np.mean(vals)) if vals else None
 
-    return {"psnr": mean("psnr"), "ssim": mean("ssim"), "psnr_truth_est": mean("psnr_truth_est")}
+    return {k: mean(k) for k in ("display_psnr", "display_ssim", "linear_psnr", "display_psnr_truth_est",
+                                 "psnr_truth_est")}
 
 
 def _read_views(folder: Path, views: list[str]) -> dict[str, np.ndarray]:
     return {v: read_image(folder / f"{v}.exr") for v in views}
 
 
-def pareto_rows(rows: list[dict], accuracy: str = "psnr", lower_is_better: bool = False,
+def pareto_rows(rows: list[dict], accuracy: str = "display_psnr", lower_is_better: bool = False,
                 cost: str = "time_s") -> list[bool]:
     """Pareto flags of ``rows`` (lower ``cost``, better ``accuracy``); rows lacking either: False."""
     c = [r.get(cost) if r.get(cost) is not None else np.nan for r in rows]
@@ -253,7 +262,8 @@ def _slab_rows(sw: _Sweep, m: dict, out: Path, family: str, setting: str, n_view
             continue
         t = build_s + mm["render_s_per_view"] * n_views
         sw.add(stage="slab", family=family if modes is not None else mode, setting=f"{setting} {mode}", mode=mode,
-               time_s=round(t, 3), end_to_end_s=round(t + upstream_s, 3), psnr=mm["psnr_mean"], ssim=mm["ssim_mean"],
+               time_s=round(t, 3), end_to_end_s=round(t + upstream_s, 3), display_psnr=mm["display_psnr_mean"],
+               display_ssim=mm["display_ssim_mean"], linear_psnr=mm["linear_psnr_mean"],
                **extra)
 
 
@@ -322,7 +332,8 @@ def _machine() -> dict:
             "load_average": list(os.getloadavg())}
 
 
-COLUMNS = ["stage", "family", "setting", "status", "time_s", "end_to_end_s", "psnr", "ssim", "psnr_truth_est",
+COLUMNS = ["stage", "family", "setting", "status", "time_s", "end_to_end_s", "display_psnr", "display_ssim",
+           "linear_psnr", "display_psnr_truth_est", "psnr_truth_est",
            "rotation_error_deg", "center_error_rel", "registered_fraction", "spp", "image_scale", "uv_res", "st_res",
            "mode", "poses", "minutes", "pareto", "reason"]
 
@@ -386,8 +397,10 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
             views = [c.name for c in rig.cameras.get("test", [])]
             truth = {v: (read_image(truth_dir / "linear" / f"{v}.exr"), read_image(truth_dir / "variance" / f"{v}.exr"))
                      for v in views}
-            ceiling = float(np.mean([10 * np.log10(1 / max(float(np.mean(var)), 1e-30)) for _, var in truth.values()]))
-            black = float(np.mean([_score({v: np.zeros_like(r)}, {v: (r, s)})["psnr"] for v, (r, s) in truth.items()]))
+            ceiling = float(np.mean([mse_to_psnr(display_noise_mse(r, var)) for r, var in truth.values()]))
+            linear_ceiling = float(np.mean([mse_to_psnr(float(np.mean(var))) for _, var in truth.values()]))
+            black = float(np.mean([_score({v: np.zeros_like(r)}, {v: (r, s)})["display_psnr"]
+                                   for v, (r, s) in truth.items()]))
             _sweep_reference(sw, rig, scene_file, views, truth, config, seed)
             poses = _sweep_poses(sw, art / "capture", config)
             _sweep_slab(sw, art / "capture", truth_dir, capture_s, len(views), config)
@@ -398,44 +411,47 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
         fronts = {}
         for stage in ("reference", "poses", "slab", "nerf"):
             sr = [r for r in ok if r["stage"] == stage]
-            acc, low = ("rotation_error_deg", True) if stage == "poses" else ("psnr", False)
+            acc, low = ("rotation_error_deg", True) if stage == "poses" else ("display_psnr", False)
             for r, p in zip(sr, pareto_rows(sr, acc, low)):
                 r["pareto"] = p
             fronts[stage] = [r["setting"] for r in sr if r["pareto"]]
         e2e = [dict(r, stage="end_to_end", family=r["stage"] if r["stage"] == "nerf" else r["family"].split(" on ")[0]
                     if r["family"].startswith("rebin") else "slab direct")
                for r in ok if r["stage"] in ("slab", "nerf") and r.get("end_to_end_s") is not None]
-        for r, p in zip(e2e, pareto_rows(e2e, "psnr", False, "end_to_end_s")):
+        for r, p in zip(e2e, pareto_rows(e2e, "display_psnr", False, "end_to_end_s")):
             r["pareto"] = p
         fronts["end_to_end"] = [r["setting"] for r in e2e if r["pareto"]]
         shutil.rmtree(work)
         hl = [(ceiling, "study reference noise ceiling"), (black, "empty (black) image")]
-        plots = {"reference": ("path tracer: samples per pixel x integrator", "PSNR (dB)", "psnr", False),
+        plots = {"reference": ("path tracer: samples per pixel x integrator", "display PSNR (dB)", "display_psnr", False),
                  "poses": ("poses: method x image scale", "mean rotation error (deg)", "rotation_error_deg", True),
-                 "slab": ("light slab: resolution x interpolation", "PSNR (dB)", "psnr", False),
-                 "nerf": ("NeRF: model x minutes", "PSNR (dB)", "psnr", False)}
+                 "slab": ("light slab: resolution x interpolation", "display PSNR (dB)", "display_psnr", False),
+                 "nerf": ("NeRF: model x minutes (stage wall time)", "display PSNR at capture resolution (dB)",
+                          "display_psnr", False)}
         for stage, (title, ylabel, acc, low) in plots.items():
             sr = [r for r in ok if r["stage"] == stage]
             if sr:
                 svg = _front_svg(sr, f"study {title}", ylabel, acc, "time_s", low, [] if stage == "poses" else hl)
                 write_svg(tmp / f"pareto_{stage}.svg", svg)
         if e2e:
-            svg = _front_svg(e2e, "study end to end: capture + poses + model", "PSNR (dB)", "psnr", "end_to_end_s",
+            svg = _front_svg(e2e, "study end to end: capture + poses + model", "display PSNR (dB)", "display_psnr",
+                             "end_to_end_s",
                              False, hl)
             write_svg(tmp / "pareto_end_to_end.svg", svg)
         all_rows = rows + e2e
         write_csv(tmp / "study.csv", all_rows, COLUMNS)
         write_csv(tmp / "pareto.csv", [r for r in all_rows if r.get("pareto")],
-             ["stage", "setting", "time_s", "end_to_end_s", "psnr", "rotation_error_deg"])
+             ["stage", "setting", "time_s", "end_to_end_s", "display_psnr", "linear_psnr", "rotation_error_deg"])
         write_json(tmp / "study.json", {"profile": profile, "config": asdict(config), "scene": rig.scene.name,
                                         "views": views, "truth_spp": config.truth_spp,
                                         "truth_time_s": tm["wall_time_s"] if tm else None,
-                                        "capture_s": capture_s, "psnr_noise_ceiling": ceiling, "psnr_black": black,
+                                        "capture_s": capture_s, "display_psnr_noise_ceiling": ceiling,
+                                        "psnr_noise_ceiling": linear_ceiling, "display_psnr_black": black,
                                         "rows": all_rows, "fronts": fronts, "machine": _machine(),
                                         "study_s": round(time.perf_counter() - t_start, 3)})
         manifest.add_input(resolve_scene_path(scene))
         manifest.metrics = {"points": len(rows), "failed": sum(r["status"] != "ok" for r in rows),
-                            "psnr_noise_ceiling": ceiling, **{f"front.{k}": v for k, v in fronts.items()}}
+                            "display_psnr_noise_ceiling": ceiling, **{f"front.{k}": v for k, v in fronts.items()}}
         result = manifest.write(tmp)
     return result
 

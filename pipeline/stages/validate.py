@@ -453,11 +453,11 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                                "end_to_end_s": round(t + upstream, 3), "per_view": per_view}
         scored = [n for n in results if results[n]["display_psnr_mean"] is not None]
         best = max(scored, key=lambda n: (results[n]["display_psnr_mean"], -results[n]["end_to_end_s"])) if scored else None
-        metrics = {"reference": reference, "models": results, "poses": pose_summary(artifacts_dir),
-                   "skipped": skipped, "z_crit": z_crit,
-                   "best": {"model": best, **{k: results[best][k] for k in (
+        metrics = {"best": {"model": best, **{k: results[best][k] for k in (
                        "display_psnr_mean", "display_ssim_mean", "flip_ldr_mean", "linear_psnr_mean", "end_to_end_s")}}
-                   if best else None}
+                   if best else None,
+                   "models": results, "reference": reference, "poses": pose_summary(artifacts_dir),
+                   "skipped": skipped, "z_crit": z_crit}
         write_json(tmp / "details.json", metrics)
         write_json(tmp / "metrics.json", _compact(metrics))
         model_rows = [{"model": n, **{k: v for k, v in r.items() if k != "per_view"}} for n, r in results.items()]

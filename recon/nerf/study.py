@@ -78,8 +78,8 @@ def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
 @dataclass(frozen=True)
 class NerfStudy:
     """What :func:`run_study` measured. curves: {label: held-out curve rows (step, train_s,
-    wall_s, psnr)}; rows: the curve rows of every run with ``label``, ``model``, ``poses`` first
-    (:data:`CURVES_COLUMNS`); summary: {label: {model, poses, final_psnr, steps, train_s,
+    wall_s, display_psnr, linear_psnr)}; rows: the curve rows of every run with ``label``, ``model``, ``poses`` first
+    (:data:`CURVES_COLUMNS`); summary: {label: {model, poses, final_display_psnr, steps, train_s,
     settings}}; minutes, clock, downsample: the study's settings; working_size: (width, height) of
     the held-out views as trained."""
 
@@ -93,7 +93,7 @@ class NerfStudy:
 
 
 #: columns of the study's table (one row per curve point of every run)
-CURVES_COLUMNS = ("label", "model", "poses", "step", "train_s", "wall_s", "psnr")
+CURVES_COLUMNS = ("label", "model", "poses", "step", "train_s", "wall_s", "display_psnr", "linear_psnr")
 
 
 def run_study(capture_dir, runs: list[Run], minutes: float, reference_dir=None, downsample: int | None = None,
@@ -111,10 +111,10 @@ def run_study(capture_dir, runs: list[Run], minutes: float, reference_dir=None, 
         res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s,
                                       clock=clock, overrides=settings.get(run.model, ())))
         curves[run.label] = res.curve
-        summary[run.label] = {"model": run.model, "poses": data.poses, "final_psnr": res.curve[-1]["psnr"],
+        summary[run.label] = {"model": run.model, "poses": data.poses, "final_display_psnr": res.curve[-1]["display_psnr"],
                               "steps": res.steps, "train_s": round(res.train_s, 1),
                               "settings": dict(settings.get(run.model, ()))}
         rows += [{"label": run.label, "model": run.model, "poses": str(run.poses or "gt"), **r} for r in res.curve]
-        log(f"study: {run.label}: {res.curve[-1]['psnr']:.2f} dB after {res.steps} steps")
+        log(f"study: {run.label}: display PSNR {res.curve[-1]['display_psnr']:.2f} dB after {res.steps} steps")
     k = data.test[0].camera.intrinsics
     return NerfStudy(curves, rows, summary, minutes, clock, data.downsample, (k.width, k.height))

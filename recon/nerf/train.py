@@ -36,7 +36,7 @@ from torch import nn
 
 from render.camera import Camera
 from render.image_io import atomic_path
-from render.metrics import mse_to_psnr, psnr, ssim  # one PSNR convention (capped at PSNR_MAX_DB)
+from render.metrics import mse_to_psnr, psnr, ssim, to_display  # one PSNR convention (capped at PSNR_MAX_DB)
 
 from .data import NerfData, camera_rays, stack_rays
 from .models import MODELS, make_model
@@ -79,7 +79,8 @@ class TrainConfig:
 @dataclass
 class TrainResult:
     """model (trained, eval mode); steps; train_s: training seconds; curve: rows of
-    {step, train_s, wall_s, psnr} (held-out PSNR in dB at the working scale); plan: with a
+    {step, train_s, wall_s, display_psnr, linear_psnr} (held-out PSNR in dB at the working scale, of
+    the 8-bit sRGB images and of linear radiance); plan: with a
     :class:`Deadline`, the wall-time plan (seconds): ``planned_train_s`` at the first step and at
     the end, ``after_training_s_first`` (the caller's share as first planned), ``train_wall_s`` spent, ``render_s_per_ray`` measured last, ``stopped_by``."""
 
@@ -88,6 +89,10 @@ class TrainResult:
     train_s: float
     curve: list[dict] = field(default_factory=list)
     plan: dict = field(default_factory=dict)
+
+
+#: the share of the time left that one render-cost probe may take (:func:`train`'s probe_cost)
+PROBE_SHARE = 0.02
 
 
 @dataclass(frozen=True)
@@ -144,16 +149,17 @@ def _curve_pixels(data: NerfData, n: int | None, seed: int) -> list[torch.Tensor
     return out
 
 
-def _held_out_psnr(model: nn.Module, data: NerfData, pixels: list) -> float:
-    """Mean over held-out views of the PSNR (whole images, or the fixed pixel subsets)."""
-    vals = []
+def _held_out_psnr(model: nn.Module, data: NerfData, pixels: list) -> tuple[float, float]:
+    """Means over held-out views of the display PSNR (8-bit sRGB, :func:`render.metrics.to_display`)
+    and the linear PSNR (whole images, or the fixed pixel subsets)."""
+    shown, linear = [], []
     for v, px in zip(data.test, pixels):
-        pred = render_view(model, v.camera, pixels=px)["rgb"]
+        pred = render_view(model, v.camera, pixels=px)["rgb"].reshape(-1, 3)
         ref = v.rgb.reshape(-1, 3) if px is None else v.rgb.reshape(-1, 3)[px.numpy()]
-        mse = float(np.mean((np.clip(pred.reshape(-1, 3), 0, 1) - np.clip(ref, 0, 1)) ** 2))
-        vals.append(mse_to_psnr(mse))
+        shown.append(psnr(to_display(pred), to_display(ref)))
+        linear.append(psnr(pred, ref))
     model.train()
-    return float(np.mean(vals))
+    return float(np.mean(shown)), float(np.mean(linear))
 
 
 def _make_optimizer(model, progress: float) -> torch.optim.Optimizer:
@@ -174,7 +180,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
 
     checkpoint: where to write checkpoints (None: never); resume: continue from ``checkpoint``
     if it exists; progress: called after every step with {fraction, step, loss, psnr,
-    test_psnr (latest held-out PSNR or None), rays, points}; stop_step: leave after this many
+    test_psnr (latest held-out display PSNR or None), rays, points}; stop_step: leave after this many
     steps as an interruption would (checkpoint written, schedule unchanged, nothing finalised);
     deadline: also stop so that training and the caller's ``after_s`` fit before ``deadline.end``
     (module docstring); the final held-out curve point is then not computed.
@@ -212,8 +218,17 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         probe = torch.randperm(k0.width * k0.height, generator=g)[:min(136, k0.width * k0.height)]
 
     def probe_cost() -> float:
+        """The model's render cost per ray, measured on at most 128 probe rays: as many as fit
+        PROBE_SHARE of the time left before the deadline at the cost of the 8 warm-up rays (an
+        upper bound per ray: first-call overheads included), at least 8. A fixed 128 cost 10 s of
+        an untrained model on 2 loaded cores, most of a 12 s budget."""
+        t0 = time.perf_counter()
         render_view(model, data.test[0].camera, pixels=probe[:8])  # first-call overheads are not a ray's cost
-        cost = render_cost_per_ray(model, data.test[0].camera, probe[8:] if probe.shape[0] > 8 else probe)
+        warm_s_per_ray = (time.perf_counter() - t0) / min(8, probe.shape[0])
+        left = max(deadline.end - time.perf_counter(), 0.0)
+        n = int(min(128, max(8, PROBE_SHARE * left / max(warm_s_per_ray, 1e-9))))
+        rest = probe[8:8 + n]
+        cost = render_cost_per_ray(model, data.test[0].camera, rest if rest.shape[0] else probe)
         model.train()
         return cost
 
@@ -252,17 +267,17 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     wall0 = time.perf_counter() - (curve[-1]["wall_s"] if curve else 0.0)
     next_eval = (curve[-1]["train_s"] if curve else 0.0) + cfg.eval_every_s  # no point at step 0
     next_ckpt = train_s + cfg.checkpoint_every_s
-    test_psnr = curve[-1]["psnr"] if curve else None
+    test_psnr = curve[-1]["display_psnr"] if curve else None
     stopped_by = "budget"
     model.train()
     while True:
         if train_s >= next_eval:
             t_eval = time.perf_counter()
-            test_psnr = _held_out_psnr(model, data, pixels)
+            test_psnr, test_linear = _held_out_psnr(model, data, pixels)
             if curve_rays:
                 s_per_ray = (time.perf_counter() - t_eval) / curve_rays  # the model's render cost as it is now
             curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
-                          "psnr": round(test_psnr, 4)})
+                          "display_psnr": round(test_psnr, 4), "linear_psnr": round(test_linear, 4)})
             next_eval = train_s + cfg.eval_every_s
         progress_now = frac()
         if progress_now >= 1.0:
@@ -313,9 +328,9 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     if hasattr(model, "update_occupancy") and step >= getattr(model_cfg, "occ_start", 0):
         model.update_occupancy()  # the final state, so rendering skips all empty space
     if deadline is None and (not curve or curve[-1]["step"] != step):
-        test_psnr = _held_out_psnr(model, data, pixels)
+        test_psnr, test_linear = _held_out_psnr(model, data, pixels)
         curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
-                      "psnr": round(test_psnr, 4)})
+                      "display_psnr": round(test_psnr, 4), "linear_psnr": round(test_linear, 4)})
     if checkpoint is not None:
         _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
     model.eval()
@@ -326,15 +341,21 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     return TrainResult(model, step, train_s, curve, plan)
 
 
+def _scores(pred: np.ndarray, ref: np.ndarray) -> dict[str, float]:
+    """display_psnr, display_ssim (8-bit sRGB images) and linear_psnr of a (H, W, 3) render."""
+    shown, shown_ref = to_display(pred), to_display(ref)
+    return {"display_psnr": psnr(shown, shown_ref), "display_ssim": ssim(shown, shown_ref), "linear_psnr": psnr(pred, ref)}
+
+
 def evaluate_view(model: nn.Module, v, full_res: bool) -> tuple[dict, dict]:
     """Render one held-out view (:class:`recon.nerf.data.View`) and compare it with its reference:
     (row, render) as one element of :func:`evaluate_views`. A pure function of (model, view), so
     views may be rendered in any process (the pipeline runs one view per unit of work)."""
     small = render_view(model, v.camera)
-    row = {"view": v.name, "psnr": psnr(small["rgb"], v.rgb), "ssim": ssim(small["rgb"], v.rgb)}
+    row = {"view": v.name, **_scores(small["rgb"], v.rgb)}
     if full_res:
         big = render_view(model, v.full_camera)
-        row.update(psnr_full=psnr(big["rgb"], v.full_rgb), ssim_full=ssim(big["rgb"], v.full_rgb))
+        row.update({f"{k}_full": x for k, x in _scores(big["rgb"], v.full_rgb).items()})
     else:
         f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
         big = {k: np.repeat(np.repeat(a, f, axis=0), f, axis=1) for k, a in small.items()}
@@ -344,8 +365,8 @@ def evaluate_view(model: nn.Module, v, full_res: bool) -> tuple[dict, dict]:
 def evaluate_views(model: nn.Module, data: NerfData, full_res: bool) -> tuple[list[dict], dict[str, dict]]:
     """Render every held-out view and compare it with its reference.
 
-    Returns (rows, renders): rows of {view, psnr, ssim} at the working scale (against the
-    area-downsampled reference), plus {psnr_full, ssim_full} at the reference's resolution when
+    Returns (rows, renders): rows of {view, display_psnr, display_ssim, linear_psnr} at the working
+    scale (against the area-downsampled reference), plus the same with ``_full`` at the reference's resolution when
     ``full_res``; renders[view] = {"rgb", "depth"} at the reference's resolution: rendered there
     when ``full_res``, else the working-scale render repeated to that size (nearest).
     """

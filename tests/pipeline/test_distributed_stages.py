@@ -158,7 +158,7 @@ def test_nerf_held_out_views_same_bytes_in_process_and_on_2_workers(tmp_path, tw
             map_units(eng, nerf_view, [(v, False, 2) for v in data.test], shared=[shared], on_result=done.__setitem__)
         got[tag] = done
     for (row, r), (row_d, r_d) in zip(got["local"], got["dask"]):
-        assert row == row_d and np.isfinite(row["psnr"])
+        assert row == row_d and np.isfinite(row["display_psnr"])
         assert r["rgb"].tobytes() == r_d["rgb"].tobytes() and r["depth"].tobytes() == r_d["depth"].tobytes()
 
 

@@ -55,7 +55,7 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     assert shown.returncode == 0, shown.stderr
     metrics = json.loads(shown.stdout)
     files = next(iter(metrics.values()))["data"]
-    assert "psnr_mean" in files["artifacts/tiny/nerf/fast/metrics.json"]["data"]
+    assert "display_psnr_mean" in files["artifacts/tiny/nerf/fast/metrics.json"]["data"]
     assert "models" in files["artifacts/tiny/validate/metrics.json"]["data"]
     plots = run("plots", "show", "--json")
     assert plots.returncode == 0 and "curve.csv" in plots.stdout and "models.csv" in plots.stdout, plots.stderr

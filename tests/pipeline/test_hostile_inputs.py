@@ -21,6 +21,7 @@ import math
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -316,7 +317,44 @@ def test_nerf_minutes_bounds_the_stage_and_records_a_consistent_plan(work):
     writes = WRITE_S_PER_MPIX * len(m["views"]) * SIZE[0] * SIZE[1] / 1e6
     assert plan["after_training_s_first"] >= reserve + writes - 2e-3  # (rounded to ms)
     assert plan["train_s_first"] <= t["budget_s"] - plan["load_s"] - plan["after_training_s_first"]
-    assert all(math.isfinite(v) for v in (m["psnr_mean"], m["ssim_mean"]))
+    assert all(math.isfinite(v) for v in (m["display_psnr_mean"], m["display_ssim_mean"], m["linear_psnr_mean"]))
     for r in m["views"]:  # written at the capture's size whatever the evaluation scale
         assert read_exr(out / "renders" / f"{r['view']}.exr").shape == (SIZE[1], SIZE[0], 3)
     assert (out / "curve.csv").read_text().splitlines()[-1].startswith(f"{m['steps']},")
+
+
+#: the stage's own phases may overrun its budget by 10% (issue 15: "wall time at most 1.1 M")
+BUDGET_SLACK = 1.1
+#: the process's start-up beside the stage (interpreter, torch, torch._dynamo, the CLI): measured in
+#: the test by importing the same modules in a fresh interpreter just before (5.8 s CPU; 6 s of
+#: wall on idle cores, 45 s at a load average of 11 on 2 cores), allowed x START_UP_FACTOR + START_UP_PAD_S
+START_UP_FACTOR, START_UP_PAD_S = 1.5, 5.0
+
+
+def test_nerf_minutes_bounds_the_whole_stage_through_the_cli(work):
+    """`nerf --minutes 0.2` (12 s) on the tiny capture: the stage's own clock, from the call to the
+    last file written before metrics.json, stays within 1.1 x 12 s; its recorded phases (load,
+    training, held-out renders, writing) account for that time; and the whole process, start-up
+    included, ends within 1.1 x 12 s plus the start-up allowance measured here (module constants).
+    Before the render-cost probe was sized to the time left and torch._dynamo imported with the
+    stage, the same command ran 38 s of stage time (the probe alone 10 s, the first optimizer's
+    import 25 s) on loaded cores."""
+    t0 = time.perf_counter()
+    probe = subprocess.run([sys.executable, "-c", "import pipeline.cli, pipeline.stages.nerf, kornia.metrics"],
+                           capture_output=True, text=True, timeout=600)
+    start_up_s = time.perf_counter() - t0
+    assert probe.returncode == 0, probe.stderr
+    out = work / "art" / "nerf" / "bounded"
+    t0 = time.perf_counter()
+    proc = lumigraph("nerf", work / "art" / "capture", "--minutes", "0.2", "--out", out, "--workers", "0")
+    wall_s = time.perf_counter() - t0
+    assert proc.returncode == 0, proc.stderr
+    t = json.loads((out / "metrics.json").read_text())["time"]
+    done = t["actual"]
+    assert t["budget_s"] == 12.0
+    assert done["stage_s"] <= BUDGET_SLACK * t["budget_s"], done
+    phases = done["load_s"] + done["train_total_s"] + done["render_s"] + done["write_s"]
+    assert phases <= done["stage_s"] + 0.01 and done["stage_s"] - phases < 1.0, (phases, done)
+    assert wall_s <= BUDGET_SLACK * t["budget_s"] + START_UP_FACTOR * start_up_s + START_UP_PAD_S, (wall_s, start_up_s)
+    manifest = json.loads((out / MANIFEST).read_text())["metrics"]
+    assert manifest["stage_s"] == done["stage_s"] and manifest["budget_s"] == 12.0

@@ -241,7 +241,7 @@ def test_run_goes_through_validate_and_report(tiny_run):
     values = list(numbers(metrics))
     assert values and all(math.isfinite(v) for v in values)
     for model in metrics["models"].values():
-        assert 0 < model["psnr_mean"] <= PSNR_MAX_DB
+        assert 0 < model["display_psnr_mean"] <= PSNR_MAX_DB and 0 < model["linear_psnr_mean"] <= PSNR_MAX_DB
 
 
 def test_inspect_every_stage_folder_run_wrote(tiny_run):
@@ -281,14 +281,16 @@ def test_exact_match_metrics_are_written_as_finite_json(tiny_run, tmp_path):
     own = slab_render(slabs, cam, "depth", (0.0, 0.0, 0.0))
     assert own.max() > 0
     metrics, _ = score_slab_views(slabs, [cam], [own], modes=("depth",))
-    assert metrics["depth"]["psnr_mean"] == PSNR_MAX_DB and metrics["depth"]["ssim_mean"] == 1.0
+    assert metrics["depth"]["display_psnr_mean"] == metrics["depth"]["linear_psnr_mean"] == PSNR_MAX_DB
+    assert metrics["depth"]["display_ssim_mean"] == 1.0
     write_json(tmp_path / "slab_metrics.json", metrics)
 
     model = make_model("fast", -np.ones(3), np.ones(3)).eval()
     small = Camera(Intrinsics.from_fov(8, 6, 50.0), cam.cam_to_world, "exact")
     view = View("exact", small, nerf_render(model, small)["rgb"], small)
     row, _ = evaluate_view(model, view, False)
-    assert row["psnr"] == PSNR_MAX_DB and row["ssim"] == 1.0
-    write_json(tmp_path / "nerf_metrics.json", {"psnr_mean": float(np.mean([row["psnr"]])), "views": [row]})
+    assert row["display_psnr"] == row["linear_psnr"] == PSNR_MAX_DB and row["display_ssim"] == 1.0
+    write_json(tmp_path / "nerf_metrics.json", {"display_psnr_mean": float(np.mean([row["display_psnr"]])),
+                                                "views": [row]})
     for name in ("slab_metrics.json", "nerf_metrics.json"):
         json.loads((tmp_path / name).read_text())

@@ -12,7 +12,7 @@ from pipeline.artifacts import BadInput, read_manifest
 from pipeline.stages.slab import SlabStageConfig, run_slab
 from recon.slab import LayoutConfig
 from render.image_io import read_exr
-from render.metrics import psnr
+from render.metrics import psnr, to_display
 from render.lightfield import MODES, load_slabs
 
 from .conftest import TINY_SCENE, write_scene
@@ -63,12 +63,19 @@ def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
     for v in tests:
         ref = read_exr(capture / "linear" / f"{v}.exr")
         black = psnr(np.zeros_like(ref), ref)
-        assert metrics["per_view"][v]["psnr"] > black + BLACK_MARGIN_DB, (v, metrics["per_view"][v]["psnr"], black)
+        got = metrics["per_view"][v]
+        assert got["linear_psnr"] > black + BLACK_MARGIN_DB, (v, got["linear_psnr"], black)
+        # the display figure is the 8-bit sRGB images' PSNR of the written render (EXR: float32, exact)
+        shown = to_display(read_exr(out / "renders" / f"{v}.exr"))
+        assert got["display_psnr"] == pytest.approx(psnr(shown, to_display(ref)), abs=1e-9)
+        assert got["display_psnr"] > psnr(to_display(np.zeros_like(ref)), to_display(ref))
     for mode in MODES:
         for v in tests:
-            assert np.isfinite(metrics["modes"][mode]["per_view"][v]["psnr"])
+            assert np.isfinite(metrics["modes"][mode]["per_view"][v]["display_psnr"])
+            assert np.isfinite(metrics["modes"][mode]["per_view"][v]["linear_psnr"])
             if mode == metrics["mode"]:  # SSIM for the primary mode (the others: PSNR only)
-                assert 0 < metrics["modes"][mode]["per_view"][v]["ssim"] <= 1 and 0 < metrics["per_view"][v]["ssim"] <= 1
+                assert 0 < metrics["modes"][mode]["per_view"][v]["display_ssim"] <= 1
+                assert 0 < metrics["per_view"][v]["display_ssim"] <= 1
     slabs = load_slabs(out / "slabs")
     assert len(slabs) >= 3 and isinstance(slabs[0].radiance, np.memmap)
     if method == "rebin":
@@ -78,7 +85,8 @@ def test_slab_stage_writes_the_design_layout(capture, tmp_path, method):
     assert [s.geometry.name for s in vq] == [s.geometry.name for s in slabs] and all(s.compressed for s in vq)
     c = metrics["compression"]
     assert c["ratio_vs_float32"] > 1 and c["files"]["radiance"] == 0
-    assert set(c["psnr_cost"]) == {"depth", "quadrilinear"} and all(np.isfinite(v) for v in c["psnr_cost"].values())
+    assert set(c["display_psnr_cost"]) == {"depth", "quadrilinear"}
+    assert all(np.isfinite(v) for v in c["display_psnr_cost"].values())
     assert sorted(p.stem for p in (out / "renders_vq").glob("*.png")) == tests
 
 
@@ -119,7 +127,7 @@ def test_slab_study_table_and_plot(capture, tmp_path):
     assert len(rows) == 2 * len(MODES) and m["metrics"]["grid_points"] == 2
     assert {r["mode"] for r in rows} == set(MODES)
     for r in rows:
-        assert np.isfinite(float(r["psnr"])) and float(r["slab_mb"]) > 0 and float(r["render_cpu_ms_256"]) > 0
+        assert np.isfinite(float(r["display_psnr"])) and np.isfinite(float(r["linear_psnr"])) and float(r["slab_mb"]) > 0 and float(r["render_cpu_ms_256"]) > 0
     mb = {r["st_res"]: float(r["slab_mb"]) for r in rows}
     assert mb["24"] > mb["16"]
     assert (out / "study.svg").read_text().startswith("<svg") and not (out / "scratch").exists()

@@ -201,7 +201,7 @@ def trained_fast(tiny_data):
 
 def test_fast_model_learns_the_tiny_scene(trained_fast, tiny_data):
     """After 150 steps the held-out PSNR beats the all-black prediction by more than 8 dB."""
-    final = trained_fast.curve[-1]["psnr"]
+    final = trained_fast.curve[-1]["linear_psnr"]
     assert final > _psnr_black(tiny_data) + 8, (final, _psnr_black(tiny_data))
     assert trained_fast.steps == 150
 
@@ -283,9 +283,9 @@ def test_stage_writes_the_nerf_folder(stage_out, tiny_capture):
         assert depth.shape == (SIZE[1], SIZE[0]) and depth.min() >= 0
     metrics = json.loads((stage_out / "metrics.json").read_text())
     assert [r["view"] for r in metrics["views"]] == names
-    assert all(np.isfinite(r["psnr"]) and 0 <= r["ssim"] <= 1 for r in metrics["views"])
+    assert all(np.isfinite(r["display_psnr"]) and 0 <= r["display_ssim"] <= 1 for r in metrics["views"])
     lines = (stage_out / "curve.csv").read_text().splitlines()
-    assert lines[0] == "step,train_s,wall_s,psnr" and len(lines) >= 2
+    assert lines[0] == "step,train_s,wall_s,display_psnr,linear_psnr" and len(lines) >= 2
     manifest = json.loads((stage_out / "manifest.json").read_text())
     assert manifest["stage"] == "nerf" and "checkpoint.pt" in manifest["outputs"]
     assert not list(stage_out.parent.glob(".*"))  # no partial folder or resume file left behind

@@ -45,7 +45,7 @@ def test_hard_case_all_black_images(tiny):
     black = lambda views: [replace(v, rgb=np.zeros_like(v.rgb)) for v in views]
     data = replace(tiny, train=black(tiny.train), test=black(tiny.test))
     res = _train(data)
-    assert res.steps == STEPS and all(np.isfinite(row["psnr"]) for row in res.curve)
+    assert res.steps == STEPS and all(np.isfinite(row["display_psnr"]) for row in res.curve)
     out = render_view(res.model, data.test[0].camera)
     _finite_bounded(out)
     assert out["rgb"].max() < 0.1, (out["rgb"].mean(), out["rgb"].max())
@@ -57,7 +57,7 @@ def test_hard_case_a_single_training_view(tiny):
     fitted better than an all-black image (its MSE below black's)."""
     data = replace(tiny, train=tiny.train[:1])
     res = _train(data)
-    assert res.steps == STEPS and all(np.isfinite(row["psnr"]) for row in res.curve)
+    assert res.steps == STEPS and all(np.isfinite(row["display_psnr"]) for row in res.curve)
     for v in data.test:
         _finite_bounded(render_view(res.model, v.camera))
     seen = render_view(res.model, data.train[0].camera)["rgb"]
