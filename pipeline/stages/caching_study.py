@@ -34,8 +34,8 @@ Files written into the study folder::
     images_<scene>.png        reference | path at equal time | cache (middle a), side by side
     summary.json              the lecture contract's front page (title, claim, headline, figures)
 
-Profiles: ``quick`` (48 x 48 Cornell, 64 x 48 turntable; a few minutes on 2 cores) and ``full``
-(128 x 128, 160 x 120; more samples and record rays). The environment variable
+Profiles: ``quick`` (96 x 96 Cornell, 64 x 48 turntable; about two minutes on 2 cores) and
+``full`` (192 x 192, 160 x 120; more samples, record rays and error bounds). The environment variable
 ``LUMIGRAPH_CACHING_SIZE=tiny`` shrinks everything to seconds (16 x 16): for tests of the files
 and the contract only; the summary records the size used. Timings are wall clock on a shared
 machine: the ratios, not the seconds, are the result.
@@ -82,10 +82,10 @@ class StudySize:
 
 SIZES = {
     "tiny": StudySize("tiny", {"cornell": (16, 16), "turntable": (16, 12)}, 64, (1, 4, 16), 4, (0.3, 0.8), 16, 64, 16),
-    "quick": StudySize("quick", {"cornell": (48, 48), "turntable": (64, 48)}, 1024, (1, 2, 4, 8, 16, 32, 64, 128), 64,
-                       (0.15, 0.3, 0.6), 128, 256, 1024),
-    "full": StudySize("full", {"cornell": (128, 128), "turntable": (160, 120)}, 4096,
-                      (1, 2, 4, 8, 16, 32, 64, 128, 256, 512), 128, (0.1, 0.2, 0.4, 0.8), 256, 1024, 2048),
+    "quick": StudySize("quick", {"cornell": (96, 96), "turntable": (64, 48)}, 512, (1, 2, 4, 8, 16, 32, 64), 64,
+                       (0.3, 0.6, 1.0), 128, 256, 256),
+    "full": StudySize("full", {"cornell": (192, 192), "turntable": (160, 120)}, 2048,
+                      (1, 2, 4, 8, 16, 32, 64, 128, 256), 128, (0.2, 0.4, 0.7, 1.0), 256, 512, 512),
 }
 
 
