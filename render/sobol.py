@@ -39,7 +39,6 @@ low 32 bits are the Sobol index i (so sample indices up to R 2^32). Uniforms are
 """
 from __future__ import annotations
 
-import importlib.util
 import os
 
 import numpy as np
@@ -60,10 +59,11 @@ _S32 = np.uint64(32)
 
 
 def _joe_kuo_table() -> tuple[np.ndarray, np.ndarray]:
-    """(poly, vinit) of scipy's bundled Joe-Kuo file, read with numpy alone (importing scipy.stats
-    costs a third of a second of start-up that the ``reference`` command does not need)."""
-    spec = importlib.util.find_spec("scipy")
-    path = os.path.join(spec.submodule_search_locations[0], "stats", "_sobol_direction_numbers.npz")
+    """(poly, vinit) of scipy's bundled Joe-Kuo file, read with numpy (the bare ``scipy`` package
+    only locates it: importing scipy.stats would cost a third of a second of start-up)."""
+    import scipy
+
+    path = os.path.join(os.path.dirname(scipy.__file__), "stats", "_sobol_direction_numbers.npz")
     with np.load(path) as z:
         return z["poly"].astype(np.int64), z["vinit"].astype(np.int64)
 
