@@ -17,10 +17,11 @@ figures; see :mod:`pipeline.stages.lecture`). Files written into the study folde
     linear_rank.svg      (and .png) that rank against the number of views
     summary.json         the front page, plus every figure of the three parts
 
-Profiles: ``quick`` (a few minutes on 2 cores) trains each NeRF a fixed number of steps sized to
-show the effect on the three 64 x 8 images (1536 rays: a few hundred passes over them);
-``full`` trains each up to :data:`recon.nerf.uniqueness.STUDY_STEPS` within 5 minutes (the
-issue's 10 minutes for both) and uses the finer density grid. The environment variable
+Profiles: ``quick`` trains each NeRF a fixed 1000 steps (vanilla: 256 rays a step, some 170
+passes over the three 64 x 8 images' 1536 rays; about 5 CPU-minutes in all on idle cores, longer
+but the same steps on a loaded machine); ``full`` trains each up to
+:data:`recon.nerf.uniqueness.STUDY_STEPS` within 5 minutes (the issue's 10 minutes for both) and
+uses the finer grids. The environment variable
 ``LUMIGRAPH_UNIQUENESS_SIZE=tiny`` shrinks every part to seconds (a few NeRF steps, small
 grids): for tests of the files and the exact claims only; the summary records the size used.
 """
