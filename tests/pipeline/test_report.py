@@ -250,8 +250,9 @@ def test_report_loads_in_chromium_without_errors_and_decodes_its_images(browser,
     imgs = state["images"]
     models = json.loads((tiny_artifacts / "validate" / "metrics.json").read_text())["models"]
     views = json.loads((tiny_artifacts / "validate" / "manifest.json").read_text())["params"]["views"]
-    # per shown view: reference render + noise, and render + error + Z-map of every model
-    assert len(imgs) == min(len(views), 4) * (2 + 3 * len(models))
+    # per shown view: reference render + noise, and render + error + Z-map + ꟻLIP map of every model
+    assert len(imgs) == min(len(views), 4) * (2 + 4 * len(models))
+    assert sum("ꟻLIP error" in i["alt"] for i in imgs) == min(len(views), 4) * len(models)
     bad = [i for i in imgs if not (i["complete"] and i["decoded"] and i["w"] > 0 and i["h"] > 0)]
     assert bad == []
     assert state["svgs"] >= 1 and state["circles"] >= len(models)
@@ -278,6 +279,12 @@ def test_report_is_self_contained(report, tiny_artifacts):  # noqa: F811
     assert "http://" not in text.replace("http://www.w3.org/2000/svg", "") and "https://" not in text
     best = json.loads((tiny_artifacts / "validate" / "metrics.json").read_text())["best"]["model"]
     assert f"Best at the held-out views: {best}" in text
+    # the models table: display figures first, the all-black image's row with validate's black scores
+    met = json.loads((tiny_artifacts / "validate" / "metrics.json").read_text())
+    header = re.search(r"<table><tr>(.*?)</tr>", text.split("Models at the held-out views")[1]).group(1)
+    assert re.findall(r"<th>(.*?)</th>", header)[2:5] == ["display PSNR dB", "subject display PSNR dB", "SSIM"]
+    row = re.search(r'<tr class="black"><td>all-black image</td><td>–</td><td>([^<]*)</td>', text)
+    assert row and row.group(1) == f"{met['reference']['black']['display_psnr_mean']:.2f}", row
     # moved elsewhere alone, it still has everything
     moved = shutil.copy(report, Path(tempfile.mkdtemp()) / "r.html")
     assert Path(moved).read_text() == text
