@@ -18,8 +18,9 @@ figures; see :mod:`pipeline.stages.lecture`). Files written into the study folde
     summary.json         the front page, plus every figure of the three parts
 
 Profiles: ``quick`` trains each NeRF a fixed 1000 steps (vanilla: 256 rays a step, some 170
-passes over the three 64 x 8 images' 1536 rays; about 5 CPU-minutes in all on idle cores, longer
-but the same steps on a loaded machine); ``full`` trains each up to
+passes over the three 64 x 8 images' 1536 rays; the same steps on a loaded machine, only slower) and
+runs the other two parts at full size (measured on a 4-8x loaded machine with the NeRFs stopped
+early by a wall-clock cap since removed: 1909 s wall, 784 CPU-s); ``full`` trains each up to
 :data:`recon.nerf.uniqueness.STUDY_STEPS` within 5 minutes (the issue's 10 minutes for both) and
 uses the finer grids. The environment variable
 ``LUMIGRAPH_UNIQUENESS_SIZE=tiny`` shrinks every part to seconds (a few NeRF steps, small

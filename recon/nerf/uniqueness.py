@@ -782,7 +782,7 @@ class StudySize:
 
 
 #: the study's sizes: ``full`` (the issue's 10 minutes of NeRF training, both models together),
-#: ``quick`` (about 5 CPU-minutes: 1000 steps per NeRF, over a hundred passes over the 1536 rays) and
+#: ``quick`` (1000 steps per NeRF, over a hundred passes over the 1536 rays; the other parts full) and
 #: ``tiny`` (seconds: tests of the files and the exact claims; its NeRFs are untrained)
 STUDY_SIZES = {
     "full": StudySize("full", nerf_steps=None, nerf_seconds=300.0, mass_spacing=0.005),
