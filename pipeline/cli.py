@@ -123,7 +123,8 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
 
     try:
         cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=not self_calibrate, image_scale=image_scale,
-                                              max_features=max_features, matcher=matcher),
+                                              max_features=max_features, matcher=matcher,
+                                              mapper=mapper),
                           charuco=CharucoConfig(calibrate=self_calibrate))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
