@@ -419,6 +419,10 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
     models, ref, best = met.get("models", {}), met.get("reference", {}), met.get("best")
     if not isinstance(models, dict):
         raise BadInput(f"{vdir / 'metrics.json'}: 'models' is not an object")
+    stale = sorted(n for n, m in models.items() if not isinstance(m, dict) or "display_psnr_mean" not in m)
+    if stale:  # written before the display metrics: say so instead of a KeyError
+        raise BadInput(f"{vdir / 'metrics.json'}: models {', '.join(stale)} have no display_psnr_mean "
+                       "(an older validate stage): rerun `lumigraph validate --overwrite`")
     names = sorted(models)
     mask = pareto_mask([models[n]["end_to_end_s"] for n in names],
                        [models[n]["display_psnr_mean"] if models[n]["display_psnr_mean"] is not None else float("nan")

@@ -316,3 +316,23 @@ def test_svg_plot_is_finite_and_escaped():
     assert "a&lt;b" in s and "x&amp;y" in s and "nan" not in s.lower().replace("nano", "")
     assert s.count("<circle") == 2
     assert "no data" in svg_plot([], "x", "y")
+
+
+def test_report_on_a_stale_validate_stage_is_one_line_exit_2(tiny_artifacts, tmp_path):  # noqa: F811
+    """A validate folder written before the display metrics: one line naming the file, exit 2."""
+    import json
+    import subprocess
+    import sys
+
+    art = tmp_path / "art"
+    shutil.copytree(tiny_artifacts / "validate", art / "validate")
+    f = art / "validate" / "metrics.json"
+    met = json.loads(f.read_text())
+    for row in met["models"].values():
+        row.pop("display_psnr_mean")
+    f.write_text(json.dumps(met))
+    p = subprocess.run([sys.executable, "-m", "pipeline", "report", str(art), "--out", str(tmp_path / "r.html")],
+                       capture_output=True, text=True)
+    assert p.returncode == 2, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and "display_psnr_mean" in p.stderr and "metrics.json" in p.stderr
+    assert not (tmp_path / "r.html").exists()
