@@ -39,7 +39,6 @@ Size: ``--profile quick`` (about a minute on two cores) or ``full``; ``$LUMIGRAP
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +48,8 @@ import numpy as np
 from render.integrators import prepare
 from render.sensors import LUMINANCE, Sensor, SensorArray, lux_like, photon_irradiance, unbiased_irradiance
 
-from ..artifacts import BadInput, write_json
+from .lecture import size_name as lecture_size_name
+from ..artifacts import write_json
 from ..io import write_csv
 from ..plot import PALETTE, Series, svg_plot, write_svg
 
@@ -110,12 +110,7 @@ SIZES = {
 def size_for(profile: str) -> BiasSize:
     """The profile's size, or the tiny one when ``$LUMIGRAPH_BIAS_SIZE`` is ``tiny`` (any other
     value is refused: BadInput naming the variable)."""
-    override = os.environ.get(SIZE_ENV, "")
-    if override:
-        if override != "tiny":
-            raise BadInput(f"${SIZE_ENV}: {override!r} is not 'tiny' (unset it for the profile's size)")
-        return SIZES["tiny"]
-    return SIZES[profile]
+    return SIZES[lecture_size_name(profile, SIZE_ENV)]
 
 
 def _hall():

@@ -43,14 +43,14 @@ machine: the ratios, not the seconds, are the result.
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..artifacts import BadInput, write_json
+from .lecture import size_name as lecture_size_name
+from ..artifacts import write_json
 from ..io import write_csv
 from ..plot import PALETTE, Series, svg_plot, write_svg
 
@@ -92,12 +92,7 @@ SIZES = {
 def size_name(profile: str) -> str:
     """The size to run: the profile's, or ``tiny`` when ``$LUMIGRAPH_CACHING_SIZE`` says so (any
     other value of it is refused: BadInput naming the variable)."""
-    override = os.environ.get(SIZE_ENV, "")
-    if override:
-        if override != "tiny":
-            raise BadInput(f"${SIZE_ENV}: {override!r} is not 'tiny' (unset it for the profile's size)")
-        return "tiny"
-    return profile
+    return lecture_size_name(profile, SIZE_ENV)
 
 
 CLAIM = ("Caching results is the other way to control the variance of LDD+E paths (the slide's 'OR cache "

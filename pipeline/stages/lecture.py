@@ -18,11 +18,12 @@ and the default place, ``<root>/lecture/<name>``.
 from __future__ import annotations
 
 import importlib
+import os
 from pathlib import Path
 
 from ..artifacts import BadInput, DEFAULT_ROOT, Manifest, atomic_stage
 
-__all__ = ["LECTURE_STUDIES", "PROFILES", "lecture_dir", "run_lecture_study"]
+__all__ = ["LECTURE_STUDIES", "PROFILES", "lecture_dir", "run_lecture_study", "size_name"]
 
 #: study name -> (module, one line on what it measures)
 LECTURE_STUDIES: dict[str, tuple[str, str]] = {
@@ -35,6 +36,17 @@ LECTURE_STUDIES: dict[str, tuple[str, str]] = {
 }
 
 PROFILES = ("quick", "full")
+
+
+def size_name(profile: str, size_env: str) -> str:
+    """The size a study runs at: ``profile``, or ``tiny`` when the environment variable
+    ``size_env`` (the tests' knob) says so; any other value of it is BadInput naming it."""
+    override = os.environ.get(size_env, "")
+    if override:
+        if override != "tiny":
+            raise BadInput(f"${size_env}: {override!r} is not 'tiny' (unset it for the profile's size)")
+        return "tiny"
+    return profile
 
 
 def lecture_dir(name: str, root: Path = DEFAULT_ROOT) -> Path:

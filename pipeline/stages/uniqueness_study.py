@@ -29,11 +29,11 @@ grids): for tests of the files and the exact claims only; the summary records th
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
-from ..artifacts import BadInput, write_json
+from .lecture import size_name as lecture_size_name
+from ..artifacts import write_json
 from ..plot import Series, svg_plot, write_svg
 
 __all__ = ["SIZE_ENV", "size_name", "run", "headline", "metrics"]
@@ -46,12 +46,7 @@ def size_name(profile: str) -> str:
     """The name of the size to run (a key of :data:`recon.nerf.uniqueness.STUDY_SIZES`): the
     profile's, or ``tiny`` when ``$LUMIGRAPH_UNIQUENESS_SIZE`` says so (any other value of it is
     refused: BadInput naming the variable)."""
-    override = os.environ.get(SIZE_ENV, "")
-    if override:
-        if override != "tiny":
-            raise BadInput(f"${SIZE_ENV}: {override!r} is not 'tiny' (unset it for the profile's size)")
-        return "tiny"
-    return profile
+    return lecture_size_name(profile, SIZE_ENV)
 
 
 def run(out: Path, profile: str = "quick", seed: int = 0, quiet: bool = False) -> dict:
