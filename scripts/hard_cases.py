@@ -73,6 +73,9 @@ CATALOGUE: tuple[HardCase, ...] = (
     HardCase("render/integrators/pssmlt.py", "chains stuck in a tiny bright region",
              "tests/render/test_pssmlt.py::test_hard_case_metropolis_chains_stuck_in_a_tiny_bright_region"),
     HardCase("render/integrators/pssmlt.py", "the bootstrap finds no light", "tests/render/test_pssmlt.py::test_hard_case_bootstrap_finds_no_light"),
+    # ---- irradiance cache
+    HardCase("render/integrators/irradiance_cache.py", "records at corners, edges and grazing or inward normals",
+             "tests/render/test_irradiance_cache.py::test_hard_cases_are_finite_and_bounded"),
     # ---- media, microfacets, volume rendering, light slabs, metrics
     HardCase("render/media.py", "optically thick emitting slab (sigma_t = 1e4)", "tests/render/test_media.py::test_emitting_absorbing_slab_closed_form"),
     HardCase("render/media.py", "majorant below the density", "tests/render/test_media.py::test_hard_case_majorant_below_density_is_reported"),
