@@ -41,7 +41,8 @@ import numpy as np
 from scipy import stats
 
 from .integrators.path import kernel_scene_of, path_config
-from .integrators.path_kernels import F_DELTA, LAMBERT, KernelScene, add_unoccluded, shade_bounce
+from .integrators.path_kernels import F_DELTA, LAMBERT, KernelScene
+from .integrators.wavefront import continue_paths, new_state
 from .integrators.prepared import PreparedScene, prepare
 from .integrators.sppm import ALPHA, direct_at, photon_pass_at
 from .sampling import path_keys
@@ -181,40 +182,17 @@ def _trace_sensor_paths(ps: PreparedScene, ks: KernelScene, cfg, sensor_prim0: i
     later depth is one Embree query for the live paths, one compiled shading pass and one
     occlusion query for the shadow rays: the driver loop of render.integrators.path."""
     p = len(which)
-
-    def state():
-        return (np.empty(p, np.int64), np.empty(p, np.uint64), np.empty((p, 3)), np.empty(p), np.empty(p, np.uint8),
-                np.empty((p, 3), np.float32), np.empty((p, 3), np.float32))
-
-    cur, nxt = state(), state()
-    queue = (np.empty((p, 3), np.float32), np.empty((p, 3), np.float32), np.empty(p, np.float32),
-             np.empty(p, np.int64), np.empty((p, 3)))
-    last = (np.empty((0, 3), np.float32), np.empty((0, 3), np.float32), np.empty((0, 3)), np.empty(0),
-            np.empty(0, np.int64))
+    cur = new_state(p)
     cur[0][:] = np.arange(p)
     cur[1][:] = keys
     cur[2][:] = 1.0
     cur[3][:] = 0.0
     cur[4][:] = F_DELTA
     cur[6][:] = -sensors.normals[which]  # seen head-on: the shading normal is the sensor's
-    prim = (sensor_prim0 + which).astype(np.int32)
-    tfar, hu, hv = np.ones(p, np.float32), np.zeros(p, np.float32), np.zeros(p, np.float32)
+    hits = ((sensor_prim0 + which).astype(np.int32), np.ones(p, np.float32), np.zeros(p, np.float32),
+            np.zeros(p, np.float32))
     L = np.zeros((p, 3))
-    rays, m = 0, p
-    for depth in range(cfg.max_depth + 1):
-        if m == 0:
-            break
-        idx, k, beta, pdf, flags, o32, d32 = (a[:m] for a in cur)
-        if depth > 0:
-            prim, tfar, hu, hv = ps.accel.intersect_fast(o32, d32)
-            rays += m
-        nn, nq, _ = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, k, beta, d32, pdf, flags, L,
-                                 *nxt, *queue, *last)
-        if nq:
-            occ = ps.accel.occluded_fast(queue[0][:nq], queue[1][:nq], queue[2][:nq])
-            rays += nq
-            add_unoccluded(L, queue[3], queue[4], occ)
-        cur, nxt, m = nxt, cur, nn
+    rays = continue_paths(ps.accel, ks, cfg, cur, hits, 0, L)
     return L, rays
 
 

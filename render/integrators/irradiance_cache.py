@@ -70,11 +70,11 @@ from ..camera import Camera
 from ..film import Film, RenderResult, whole_groups
 from ..sampling import _GOLDEN, _M2, _mix64, orthonormal_frame
 from ..scene import Scene
-from .path import (_queue_buffers, _last_ray_buffers, _state_buffers, _trace, kernel_scene_of, path_config,
-                   pinhole_of)
-from .path_kernels import F_AFTER_DIFF, F_DELTA, LAMBERT, add_unoccluded, sample_camera_rays, shade_bounce
+from .path import _trace, kernel_scene_of, path_config, pinhole_of
+from .path_kernels import F_AFTER_DIFF, F_DELTA, LAMBERT, sample_camera_rays
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic
+from .wavefront import continue_paths, new_state
 
 __all__ = ["Options", "render_result", "render_cache", "GROUPS", "ROUNDS", "NEIGHBOURS", "IrradianceCache",
            "cache_records", "cached_irradiance", "ward_weight", "ward_error"]
@@ -260,9 +260,7 @@ def _trace_records(ps: PreparedScene, cfg, points: np.ndarray, normals: np.ndarr
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     p = np.repeat(points, rays, axis=0)
     o = p + offset_eps(p, ps.geom.extent)[:, None] * nrm
-    cur, nxt = _state_buffers(n), _state_buffers(n)
-    q = _queue_buffers(n)
-    last = _last_ray_buffers(0)
+    cur = new_state(n)
     cur[0][:] = np.arange(n)
     cur[1][:] = keys
     cur[2][:] = 1.0
@@ -273,26 +271,13 @@ def _trace_records(ps: PreparedScene, cfg, points: np.ndarray, normals: np.ndarr
     cur[4][:] = F_DELTA if total else (F_DELTA | F_AFTER_DIFF)
     cur[5][:] = o
     cur[6][:] = d
-    prim, tfar, hu, hv = ps.accel.intersect_fast(cur[5], cur[6])
+    hits = ps.accel.intersect_fast(cur[5], cur[6])
+    prim, tfar = hits[0], hits[1]
     hit = prim >= 0  # Embree leaves tfar and u, v of a miss undefined: read them on hits only
     inv_t = np.zeros(n)
     inv_t[hit] = 1.0 / np.maximum(tfar[hit].astype(np.float64), 1e-30)
     L = np.zeros((n, 3))
-    nrays, live = n, n
-    for depth in range(1, cfg.max_depth + 1):
-        if live == 0:
-            break
-        idx, k, beta, pdf, flags, o32, d32 = (a[:live] for a in cur)
-        if depth > 1:
-            prim, tfar, hu, hv = ps.accel.intersect_fast(o32, d32)
-            nrays += live
-        nn, nq, _ = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, k, beta, d32, pdf, flags, L,
-                                 *nxt, *q, *last)
-        if nq:
-            occ = ps.accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
-            nrays += nq
-            add_unoccluded(L, q[3], q[4], occ)
-        cur, nxt, live = nxt, cur, nn
+    nrays = n + continue_paths(ps.accel, ks, cfg, cur, hits, 1, L)
     return L.reshape(m, rays, 3).sum(axis=1), inv_t.reshape(m, rays).sum(axis=1), nrays
 
 
