@@ -61,6 +61,7 @@ Secondary rays start at :func:`render.accel.spawn_origin` offsets (as volpath).
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,12 +71,16 @@ from ..accel import spawn_origin
 from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_sample
 from ..camera import Camera
 from ..film import Film, RenderResult, whole_groups
-from ..lights import sample_emission
-from ..sampling import INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
+from ..lights import sample_emission, scene_bounds
+from ..sampling import _GOLDEN, _mix64, INV_PI, dot3, max3, orthonormal_frame, to_local, to_world
+from .path import kernel_scene_of, pinhole_of
+from .path_kernels import sample_camera_rays
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings
+from .sppm_kernels import (add_unoccluded_direct, build_grid, emit_photons, eye_bounce, gather, photon_bounce,
+                           photon_keys)
 
-__all__ = ["Options", "SPPMResult", "render_sppm", "render_result", "photon_pass_at", "direct_at", "ALPHA", "GROUPS"]
+__all__ = ["Options", "SPPMResult", "render_sppm", "render_sppm_numpy", "render_result", "photon_pass_at", "direct_at", "ALPHA", "GROUPS"]
 
 #: Hachisuka and Jensen's (and pbrt's) fraction of new photons kept per pass
 ALPHA = 2.0 / 3.0
@@ -377,11 +382,236 @@ def direct_at(ps, points: dict, rng: np.random.Generator) -> tuple[np.ndarray, i
     return _direct_at_visible_points(ps, points, rng)
 
 
-# ---------------------------------------------------------------- the integrator
+# ---------------------------------------------------------------- the progressive estimate
+class _Progressive:
+    """SPPM's per-pixel state over passes (both implementations): radii R, photon counts N,
+    radius-rescaled flux tau, direct-term moments. npix pixels; r_floor: the smallest radius."""
+
+    def __init__(self, npix: int, r_floor: float, alpha: float):
+        self.R = np.zeros(npix)
+        self.N = np.zeros(npix)
+        self.tau = np.zeros((npix, 3))
+        self.d_s1 = np.zeros((npix, 3))
+        self.d_s2 = np.zeros((npix, 3))
+        self.r_floor, self.alpha = r_floor, alpha
+
+    def start(self, footprint: np.ndarray, initial_radius: float | None, extent: float) -> None:
+        """Set every radius: ``initial_radius``, or the median of the first pass's visible points'
+        footprints (V,) clamped to [1e-4, 0.05] x extent."""
+        if initial_radius is None:
+            fp = footprint[np.isfinite(footprint)]
+            r0 = float(np.median(fp)) if len(fp) else 1e-2 * extent
+            r0 = float(np.clip(r0, 1e-4 * extent, 5e-2 * extent))
+        else:
+            r0 = float(initial_radius)
+        self.R[:] = max(r0, self.r_floor)
+
+    def add_direct(self, direct: np.ndarray) -> None:
+        """One pass's (npix, 3) direct term."""
+        self.d_s1 += direct
+        self.d_s2 += direct * direct
+
+    def add_photons(self, vpix: np.ndarray, phi: np.ndarray, M: np.ndarray) -> None:
+        """One pass's gather at the visible points of pixels vpix (V,): Phi (V, 3), M (V,)
+        (alpha = fraction of new photons kept): N' = N + alpha M, R' = R sqrt(N' / (N + M)),
+        tau' = (tau + Phi) (R' / R)^2."""
+        g = M > 0
+        if not g.any():
+            return
+        R, N, tau = self.R, self.N, self.tau
+        px, m = vpix[g], M[g]
+        n_new = N[px] + self.alpha * m
+        r_new = np.maximum(R[px] * np.sqrt(n_new / (N[px] + m)), self.r_floor)
+        scale = (r_new / R[px]) ** 2
+        tau[px] = (tau[px] + phi[g]) * scale[:, None]
+        N[px], R[px] = n_new, r_new
+
+    def estimate(self, done: int, photons_per_pass: int) -> np.ndarray:
+        """(npix, 3) L = direct_sum / P + tau / (P N_e pi R^2) after ``done`` passes."""
+        area = np.pi * self.R * self.R
+        ind = self.tau / (float(done) * photons_per_pass * np.maximum(area, 1e-300))[:, None]
+        ind = np.where(self.N[:, None] > 0, ind, 0.0)
+        return self.d_s1 / done + ind
+
+    def result(self, passes: int, photons_per_pass: int, h: int, w: int, history: list, stats: dict) -> SPPMResult:
+        mean = self.estimate(passes, photons_per_pass)
+        if not np.all(np.isfinite(mean)):
+            raise FloatingPointError("sppm produced a non-finite radiance (a bug: please report)")
+        n = float(passes)
+        d_s1, d_s2 = self.d_s1, self.d_s2
+        dvar = np.zeros_like(d_s1) if passes < 2 else np.maximum(d_s2 - d_s1 * d_s1 / n, 0.0) / (n * (n - 1.0))
+        return SPPMResult(mean.reshape(h, w, 3), self.R.reshape(h, w), self.N.reshape(h, w),
+                          self.tau.reshape(h, w, 3), (d_s1 / n).reshape(h, w, 3), dvar.reshape(h, w, 3), passes,
+                          photons_per_pass, history, stats)
+
+
+def _check_arguments(passes, photons_per_pass, max_depth, first_pass, alpha, initial_radius) -> None:
+    if passes < 1 or photons_per_pass < 1 or max_depth < 0 or first_pass < 0:
+        raise ValueError("sppm: passes and photons_per_pass must be >= 1, max_depth and first_pass >= 0")
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"sppm: alpha must lie in (0, 1), got {alpha}")
+    if initial_radius is not None and not (np.isfinite(initial_radius) and initial_radius > 0):
+        raise ValueError(f"sppm: initial_radius must be a positive finite number, got {initial_radius}")
+
+
+# ---------------------------------------------------------------- the integrator: numpy reference
+def render_sppm_numpy(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
+                      max_depth: int = 8, seed: int = 0, *, prepared: PreparedScene | None = None,
+                      alpha: float = ALPHA, caustics: bool = True, callback=None, first_pass: int = 0) -> SPPMResult:
+    """:func:`render_sppm` in numpy (the tested reference of the compiled one; the same
+    arguments, the same estimator; its random numbers: a numpy Generator per pass seeded by
+    (seed, global pass index, stream), so its bytes differ from the compiled one's)."""
+    t0 = time.perf_counter()
+    passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
+    first_pass = int(first_pass)
+    _check_arguments(passes, photons_per_pass, max_depth, first_pass, alpha, initial_radius)
+    ps = prepared if prepared is not None else prepare(scene)
+    _check_supported(scene, ps.mats)
+    k = camera.intrinsics
+    h, w = k.height, k.width
+    npix = h * w
+    extent = ps.geom.extent
+    state = _Progressive(npix, 1e-9 * extent, alpha)
+    history = []
+    rays = 0
+    seed32 = int(seed) & 0xFFFFFFFF
+    for it in range(passes):
+        tp = time.perf_counter()
+        rng_eye = np.random.default_rng([seed32, first_pass + it, 0])
+        rng_ph = np.random.default_rng([seed32, first_pass + it, 1])
+        direct, vp, nr = _eye_pass(ps, camera, rng_eye, max_depth)
+        rays += nr
+        nee, nsh = _direct_at_visible_points(ps, vp, rng_eye)
+        rays += nsh
+        if len(vp["pix"]):
+            direct[vp["pix"]] += nee  # at most one visible point per pixel
+        state.add_direct(direct)
+        if it == 0:
+            state.start(vp["footprint"], initial_radius, extent)
+        ph, nr = _photon_pass(ps, photons_per_pass, rng_ph, max_depth, caustics)
+        rays += nr
+        vpix = vp["pix"]
+        phi, M = _gather(vp, state.R[vpix], ph, max_depth)
+        state.add_photons(vpix, phi, M)
+        history.append({"pass": it + 1, "mean_radius": float(state.R.mean()), "min_radius": float(state.R.min()),
+                        "visible_points": int(len(vpix)), "stored_photons": int(len(ph["p"])),
+                        "gathered": int(M.sum()), "time_s": time.perf_counter() - tp})
+        if callback is not None:
+            callback(it + 1, state.estimate(it + 1, photons_per_pass).reshape(h, w, 3), state.R.reshape(h, w).copy())
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(passes * (npix + photons_per_pass)), "rays": int(rays)}
+    return state.result(passes, photons_per_pass, h, w, history, stats)
+
+
+# ---------------------------------------------------------------- the integrator: compiled
+#: rays per wavefront batch of the compiled passes (fixed: batch boundaries never change the bytes)
+_BATCH = 1 << 15
+
+
+class _PassBuffers:
+    """One compiled pass's per-pixel outputs (npix pixels): direct (npix, 3) and the visible
+    points (ok (npix,) bool, depth (npix,) int64, p, ng, n, w (npix, 3), footprint (npix,)),
+    filled by disjoint pixel ranges (so threads never write the same row)."""
+
+    def __init__(self, npix: int):
+        self.direct = np.zeros((npix, 3))
+        self.ok = np.zeros(npix, np.bool_)
+        self.depth = np.zeros(npix, np.int64)
+        self.p, self.ng, self.n, self.w = (np.zeros((npix, 3)) for _ in range(4))
+        self.footprint = np.zeros(npix)
+
+
+def _eye_batch(ps, ks, camera: Camera, pinhole, seed_mix, pass_index: int, start: int, stop: int, max_depth: int,
+               out: _PassBuffers) -> int:
+    """Eye paths of pixels [start, stop) of pass ``pass_index`` into ``out``; returns rays traced."""
+    accel = ps.accel
+    k = camera.intrinsics
+    npix = k.width * k.height
+    n = stop - start
+    cur = [np.empty(n, np.int64), np.empty(n, np.uint64), np.ones((n, 3)), np.zeros(n),
+           np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
+    nxt = [np.empty(n, np.int64), np.empty(n, np.uint64), np.empty((n, 3)), np.empty(n),
+           np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
+    q = (np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.int64),
+         np.empty((n, 3)))
+    jit = np.empty((n, 2))
+    is_pinhole = not k.has_distortion
+    sample_camera_rays(start, stop, npix, k.width, pass_index, seed_mix, pinhole, is_pinhole, cur[1], cur[0],
+                       cur[4], cur[5], jit)
+    if not is_pinhole:
+        o, d = camera.pixel_rays(jit)
+        cur[4][:], cur[5][:] = o, d
+    inv_fx = 1.0 / max(k.fx, 1e-300)
+    rays, m = 0, n
+    for depth in range(max_depth + 1):
+        if m == 0:
+            break
+        pix, keys, beta, plen, o32, d32 = (a[:m] for a in cur)
+        prim, tfar, hu, hv = accel.intersect_fast(o32, d32)
+        rays += m
+        m, nq = eye_bounce(ks, depth, max_depth, inv_fx, prim, tfar, hu, hv, pix, keys, beta, plen, d32, out.direct,
+                           out.ok, out.depth, out.p, out.ng, out.n, out.w, out.footprint, *nxt, *q)
+        if nq:
+            occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
+            rays += nq
+            add_unoccluded_direct(out.direct, q[3][:nq], q[4][:nq], occ)
+        cur, nxt = nxt, cur
+    return rays
+
+
+def _photon_batch(ps, ks, bounds, seed_mix, pass_index: int, start: int, stop: int, max_depth: int, caustics: bool):
+    """Photons [start, stop) of pass ``pass_index``: (stored (p, wi, flux (P, 3), depth (P,)), rays)."""
+    accel = ps.accel
+    keys = photon_keys(seed_mix, pass_index, start, stop)
+    n = stop - start
+    cur = [keys, np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
+    nxt = [np.empty(n, np.uint64), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
+    m = emit_photons(ks, bounds[0], bounds[1], cur[0], cur[2], cur[3], cur[1])
+    stored = []
+    rays = 0
+    for depth in range(max_depth):  # a photon hit at depth >= max_depth can never be counted
+        if m == 0:
+            break
+        keys, beta, o32, d32 = (a[:m] for a in cur)
+        prim, _, hu, hv = accel.intersect_fast(o32, d32)
+        rays += m
+        s = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.int64))
+        m, ns = photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, beta, d32,
+                              nxt[0], nxt[1], nxt[2], nxt[3], *s, 0)
+        if ns:
+            stored.append(tuple(a[:ns] for a in s))
+        cur, nxt = nxt, cur
+    if stored:
+        cols = tuple(np.concatenate(c) for c in zip(*stored))
+    else:
+        cols = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    return cols, rays
+
+
+def _gather_compiled(out: _PassBuffers, rows: np.ndarray, R: np.ndarray, photons, max_depth: int, pool):
+    """(Phi (V, 3), M (V,)) at the visible points of pixels ``rows`` (V,) (radii R (npix,))."""
+    npix = len(R)
+    phi, count = np.zeros((npix, 3)), np.zeros(npix, np.int64)
+    p, wi, flux, depth = photons
+    if len(rows) and len(p):
+        cell = float(R[rows].max())
+        cells, start, order = build_grid(p, cell)
+
+        def run(a):
+            gather(rows[a:a + _BATCH], out.p, out.n, out.w, out.depth, R, cell, cells, start, order, p, wi, flux,
+                   depth, max_depth, phi, count)
+
+        list(_map(pool, run, range(0, len(rows), _BATCH)))
+    return phi[rows], count[rows].astype(np.float64)
+
+
+def _map(pool, fn, items):
+    return pool.map(fn, items) if pool is not None else map(fn, items)
+
+
 def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
                 max_depth: int = 8, seed: int = 0, *, prepared: PreparedScene | None = None, alpha: float = ALPHA,
-                caustics: bool = True, callback=None, first_pass: int = 0) -> SPPMResult:
-    """Render ``camera``'s view of ``scene`` by stochastic progressive photon mapping.
+                caustics: bool = True, callback=None, first_pass: int = 0, threads: int | None = None) -> SPPMResult:
+    """Render ``camera``'s view of ``scene`` by stochastic progressive photon mapping (compiled kernels).
 
     passes: eye + photon passes (the image converges as passes grow). photons_per_pass: photons
     emitted per pass. initial_radius: gather radius of every pixel at the start (scene units);
@@ -395,84 +625,70 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     ``callback(pass_done, image (H, W, 3) float64, radius (H, W) float64)`` after every pass,
     with the estimate so far (for convergence studies). first_pass: global index of the first
     pass (its random streams are keyed by it): a group of passes [first_pass, first_pass +
-    passes) draws the same numbers whatever else is rendered.
+    passes) draws the same numbers whatever else is rendered. threads: worker threads (None:
+    the BVH's); the bytes do not depend on them.
+
+    Each pass runs the kernels of :mod:`render.integrators.sppm_kernels` in batches of _BATCH
+    eye paths or photons (eye and photon batches of a pass run concurrently), then gathers with
+    a hash grid over the stored photons. Random numbers: the hash keyed by (seed, pass, pixel)
+    (eye paths: ``path``'s keys of sample ``pass``) and (seed, pass, photon).
+    :func:`render_sppm_numpy` is the same estimator in numpy, its tested reference.
     """
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
     first_pass = int(first_pass)
-    if passes < 1 or photons_per_pass < 1 or max_depth < 0 or first_pass < 0:
-        raise ValueError("sppm: passes and photons_per_pass must be >= 1, max_depth and first_pass >= 0")
-    if not 0.0 < alpha < 1.0:
-        raise ValueError(f"sppm: alpha must lie in (0, 1), got {alpha}")
-    if initial_radius is not None and not (np.isfinite(initial_radius) and initial_radius > 0):
-        raise ValueError(f"sppm: initial_radius must be a positive finite number, got {initial_radius}")
+    _check_arguments(passes, photons_per_pass, max_depth, first_pass, alpha, initial_radius)
     ps = prepared if prepared is not None else prepare(scene)
     _check_supported(scene, ps.mats)
+    ks = kernel_scene_of(ps)
     k = camera.intrinsics
     h, w = k.height, k.width
     npix = h * w
     extent = ps.geom.extent
-    r_floor = 1e-9 * extent  # radii never reach zero
-    R = np.zeros(npix)
-    N = np.zeros(npix)
-    tau = np.zeros((npix, 3))
-    d_s1 = np.zeros((npix, 3))
-    d_s2 = np.zeros((npix, 3))
+    state = _Progressive(npix, 1e-9 * extent, alpha)
+    pinhole = pinhole_of(camera)
+    bounds = scene_bounds(ps.geom)
+    seed_mix = _mix64(np.array([np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
+    nthreads = ps.accel.threads if threads is None else max(1, int(threads))
+    pool = ThreadPoolExecutor(nthreads) if nthreads > 1 else None
     history = []
     rays = 0
-    seed32 = int(seed) & 0xFFFFFFFF
+    try:
+        for it in range(passes):
+            tp = time.perf_counter()
+            gp = first_pass + it
+            out = _PassBuffers(npix)
+            eye_jobs = [("eye", a, min(a + _BATCH, npix)) for a in range(0, npix, _BATCH)]
+            photon_jobs = [("photon", a, min(a + _BATCH, photons_per_pass)) for a in range(0, photons_per_pass, _BATCH)]
 
-    def estimate(done: int) -> np.ndarray:
-        area = np.pi * R * R
-        ind = tau / (float(done) * photons_per_pass * np.maximum(area, 1e-300))[:, None]
-        ind = np.where(N[:, None] > 0, ind, 0.0)
-        return d_s1 / done + ind
+            def work(job):
+                kind, a, b = job
+                if kind == "eye":
+                    return _eye_batch(ps, ks, camera, pinhole, seed_mix, gp, a, b, max_depth, out)
+                return _photon_batch(ps, ks, bounds, seed_mix, gp, a, b, max_depth, caustics)
 
-    for it in range(passes):
-        tp = time.perf_counter()
-        rng_eye = np.random.default_rng([seed32, first_pass + it, 0])
-        rng_ph = np.random.default_rng([seed32, first_pass + it, 1])
-        direct, vp, nr = _eye_pass(ps, camera, rng_eye, max_depth)
-        rays += nr
-        nee, nsh = _direct_at_visible_points(ps, vp, rng_eye)
-        rays += nsh
-        if len(vp["pix"]):
-            direct[vp["pix"]] += nee  # at most one visible point per pixel
-        d_s1 += direct
-        d_s2 += direct * direct
-        if it == 0:
-            if initial_radius is None:
-                fp = vp["footprint"][np.isfinite(vp["footprint"])]
-                r0 = float(np.median(fp)) if len(fp) else 1e-2 * extent
-                r0 = float(np.clip(r0, 1e-4 * extent, 5e-2 * extent))
-            else:
-                r0 = float(initial_radius)
-            R[:] = max(r0, r_floor)
-        ph, nr = _photon_pass(ps, photons_per_pass, rng_ph, max_depth, caustics)
-        rays += nr
-        vpix = vp["pix"]
-        phi, M = _gather(vp, R[vpix], ph, max_depth)
-        g = M > 0
-        if g.any():
-            px, m = vpix[g], M[g]
-            n_new = N[px] + alpha * m
-            r_new = np.maximum(R[px] * np.sqrt(n_new / (N[px] + m)), r_floor)
-            scale = (r_new / R[px]) ** 2
-            tau[px] = (tau[px] + phi[g]) * scale[:, None]
-            N[px], R[px] = n_new, r_new
-        history.append({"pass": it + 1, "mean_radius": float(R.mean()), "min_radius": float(R.min()),
-                        "visible_points": int(len(vpix)), "stored_photons": int(len(ph["p"])),
-                        "gathered": int(M.sum()), "time_s": time.perf_counter() - tp})
-        if callback is not None:
-            callback(it + 1, estimate(it + 1).reshape(h, w, 3), R.reshape(h, w).copy())
-    mean = estimate(passes)
-    if not np.all(np.isfinite(mean)):
-        raise FloatingPointError("sppm produced a non-finite radiance (a bug: please report)")
-    n = float(passes)
-    dvar = np.zeros_like(d_s1) if passes < 2 else np.maximum(d_s2 - d_s1 * d_s1 / n, 0.0) / (n * (n - 1.0))
+            results = list(_map(pool, work, eye_jobs + photon_jobs))
+            rays += sum(results[:len(eye_jobs)])
+            batches = results[len(eye_jobs):]
+            rays += sum(r for _, r in batches)
+            photons = tuple(np.concatenate(c) for c in zip(*(s for s, _ in batches)))
+            state.add_direct(out.direct)
+            rows = np.nonzero(out.ok)[0]
+            if it == 0:
+                state.start(out.footprint[rows], initial_radius, extent)
+            phi, M = _gather_compiled(out, rows, state.R, photons, max_depth, pool)
+            state.add_photons(rows, phi, M)
+            history.append({"pass": it + 1, "mean_radius": float(state.R.mean()), "min_radius": float(state.R.min()),
+                            "visible_points": int(len(rows)), "stored_photons": int(len(photons[0])),
+                            "gathered": int(M.sum()), "time_s": time.perf_counter() - tp})
+            if callback is not None:
+                callback(it + 1, state.estimate(it + 1, photons_per_pass).reshape(h, w, 3),
+                         state.R.reshape(h, w).copy())
+    finally:
+        if pool is not None:
+            pool.shutdown()
     stats = {"time_s": time.perf_counter() - t0, "paths": int(passes * (npix + photons_per_pass)), "rays": int(rays)}
-    return SPPMResult(mean.reshape(h, w, 3), R.reshape(h, w), N.reshape(h, w), tau.reshape(h, w, 3),
-                      (d_s1 / n).reshape(h, w, 3), dvar.reshape(h, w, 3), passes, photons_per_pass, history, stats)
+    return state.result(passes, photons_per_pass, h, w, history, stats)
 
 
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
@@ -496,7 +712,8 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     stats = {"time_s": 0.0, "paths": 0, "rays": 0, "groups": 0, "photons": 0}
     for g0, g1 in groups:
         res = render_sppm(scene, camera, g1 - g0, photons, max_depth=settings.max_depth,
-                          seed=settings.seed, prepared=prepared, caustics="caustics" in effects, first_pass=g0)
+                          seed=settings.seed, prepared=prepared, caustics="caustics" in effects, first_pass=g0,
+                          threads=settings.threads)
         image = res.mean.reshape(-1, 3)
         film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
         for key in ("time_s", "paths", "rays"):
