@@ -28,6 +28,7 @@ ranges are independent and merge (:func:`render.film.merge_results`).
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,14 +38,19 @@ from ..bsdf import CONDUCTOR, DIELECTRIC, EMISSIVE, LAMBERT, ROUGH_DIELECTRIC, b
 from ..camera import Camera
 from ..effects import scene_effects
 from ..film import Film, RenderResult
-from ..media import EV_ABSORB, EV_SCATTER, MediumSet, hg_pdf, hg_sample
+from ..media import EV_ABSORB, EV_SCATTER, MajorantError, MediumSet, hg_pdf, hg_sample
 from ..microfacet import (conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
                           rough_dielectric_pdf, rough_dielectric_sample)
-from ..sampling import mis_weight, orthonormal_frame, to_local, to_world
+from ..sampling import _GOLDEN, _mix64, mis_weight, orthonormal_frame, to_local, to_world
+from .path import _STRATEGY_CODES, kernel_scene_of, pinhole_of
+from .path_kernels import F_DELTA, SAMPLER_INDEPENDENT, accumulate, add_unoccluded, sample_camera_rays
 from .prepared import PreparedScene, prepare
+from .volpath_kernels import (MediaKernel, VolConfig, media_kernel, shadow_flush, shadow_media_step, shadow_start,
+                              vol_bounce)
 from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent, parse_sample_range
 
-__all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "surface_eval",
+__all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "render_result_numpy",
+           "surface_eval",
            "surface_sample", "shadow_transmittance"]
 
 _MAX_CROSSINGS = 16
@@ -77,6 +83,8 @@ class VolContext:
 
     ps: PreparedScene
     media: MediumSet | None
+    #: the compiled kernels' packed view (built on first use by :func:`_compiled_of`)
+    compiled: object | None = None
 
 
 def volpath_context(scene, ps, majorants: dict | None = None) -> VolContext:
@@ -427,25 +435,196 @@ def trace(ctx: VolContext, o: np.ndarray, d: np.ndarray, mid: np.ndarray, rng: n
 
 
 def render_volpath(scene, camera: Camera, settings: RenderSettings, sample_range=None, effects=None,
-                   prepared: PreparedScene | None = None, ctx: VolContext | None = None) -> RenderResult:
+                   prepared: PreparedScene | None = None, ctx: VolContext | None = None,
+                   numpy_reference: bool = False) -> RenderResult:
     """Render ``camera``'s view with ``volpath`` (settings: a :class:`RenderSettings` whose
     integrator options volpath reads: :class:`Options`). sample_range: [a, b) (default (0,
-    spp)). effects: default scene_effects(scene). prepared / ctx: to reuse.
+    spp)). effects: default scene_effects(scene). prepared / ctx: to reuse. numpy_reference:
+    run the numpy reference (:func:`render_result_numpy`) instead of the compiled kernels.
 
     Returns a :class:`render.film.RenderResult` (mean and variance (H, W, 3) float32).
     """
     eff = scene_effects(scene) if effects is None else frozenset(effects)
     ps = prepared if prepared is not None else prepare(scene, threads=settings.threads)
-    return render_result(scene, camera, settings, settings.options("volpath", Options),
-                         parse_sample_range(settings.spp, sample_range, "volpath"), eff, ps, ctx=ctx)
+    run = render_result_numpy if numpy_reference else render_result
+    return run(scene, camera, settings, settings.options("volpath", Options),
+               parse_sample_range(settings.spp, sample_range, "volpath"), eff, ps, ctx=ctx)
+
+
+# ---------------------------------------------------------------- the compiled integrator
+@dataclass
+class _Compiled:
+    """What the compiled kernels read besides path_kernels.KernelScene: GGX parameters per object
+    (alpha (M,), eta, k (M, 3)), the media packed (volpath_kernels.MediaKernel), the media BVH."""
+
+    alpha: np.ndarray
+    eta: np.ndarray
+    k: np.ndarray
+    media: MediaKernel
+    media_accel: object
+
+
+def _compiled_of(ctx: VolContext) -> _Compiled:
+    """The kernels' view of ``ctx`` (built once, kept on the context)."""
+    if ctx.compiled is None:
+        mats = ctx.ps.mats
+        m = len(mats.kind)
+        alpha = np.zeros(m) if mats.alpha is None else np.ascontiguousarray(mats.alpha, dtype=np.float64)
+        eta = np.ones((m, 3)) if mats.eta is None else np.ascontiguousarray(mats.eta, dtype=np.float64)
+        kk = np.zeros((m, 3)) if mats.k is None else np.ascontiguousarray(mats.k, dtype=np.float64)
+        if m == 0:
+            alpha, eta, kk = np.zeros(1), np.ones((1, 3)), np.zeros((1, 3))
+        ctx.compiled = _Compiled(alpha, eta, kk, media_kernel(ctx.media),
+                                 ctx.media.accel if ctx.media is not None else None)
+    return ctx.compiled
+
+
+def _vol_state(n: int) -> tuple:
+    """A wavefront state (volpath_kernels' layout): ints (N, 4) [slot, dimension, bounces, medium],
+    keys, flt (N, 4) [throughput, pdf], flags, last_p (N, 3), o32, d32 (N, 3) float32."""
+    return (np.empty((n, 4), np.int64), np.empty(n, np.uint64), np.empty((n, 4)), np.empty(n, np.uint8),
+            np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32))
+
+
+def _shadow_queue(n: int) -> tuple:
+    """Shadow rays: origin, direction, tmax (float32, as Embree reads them), ints (N, 3), keys, contribution."""
+    return (np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n, np.float32),
+            np.empty((n, 3), np.int64), np.empty(n, np.uint64), np.empty((n, 3)))
+
+
+def _media_walk(n: int) -> tuple:
+    """The media walk of shadow rays: o32, d32, rem, ints (N, 3) [slot, medium, dimension], keys, log T, contribution."""
+    return (np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty(n), np.empty((n, 3), np.int64),
+            np.empty(n, np.uint64), np.empty((n, 3)), np.empty((n, 3)))
+
+
+def _raise_majorant(ctx: VolContext, err: np.ndarray) -> None:
+    i = int(err[0]) - 1
+    raise MajorantError(f"medium {i}: extinction above the majorant {ctx.media.mu[i]:g} during tracking "
+                        "(the estimate would be biased)")
+
+
+def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfig, seed: int, mid0: int,
+                    start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
+    + pixel) with the compiled kernels. Returns ((N,) int64 pixels, (N, 3) float64 radiance).
+
+    Each round: one Embree query for the surfaces, one for the media boundaries (with media),
+    :func:`render.integrators.volpath_kernels.vol_bounce`, one occlusion query for the shadow
+    rays, then (with media) their walk through the media boundaries, one Embree query per crossing.
+    """
+    ps = ctx.ps
+    ks = kernel_scene_of(ps)
+    accel, maccel = ps.accel, comp.media_accel
+    k = cam.intrinsics
+    n = stop - start
+    npix = k.width * k.height
+    cur, nxt = _vol_state(n), _vol_state(n)
+    q = _shadow_queue(n)
+    walk = _media_walk(n) if cfg.has_media else None
+    pix = np.empty(n, np.int64)
+    jit = np.empty((n, 2))
+    seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
+    pinhole = not k.has_distortion
+    sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
+                       cur[5], cur[6], jit, SAMPLER_INDEPENDENT)
+    if not pinhole:
+        o, d = cam.pixel_rays(jit)
+        cur[5][:], cur[6][:] = o, d
+    cur[0][:, 0] = np.arange(n)
+    cur[0][:, 1] = 2  # dimensions 0 and 1: the pixel jitter
+    cur[0][:, 2] = 0
+    cur[0][:, 3] = mid0
+    cur[2][:, :3] = 1.0
+    cur[2][:, 3] = 0.0
+    cur[3][:] = F_DELTA  # the camera ray counts as specular: emission seen directly has weight 1
+    cur[4][:] = cur[5]
+    L = np.zeros((n, 3))
+    err = np.zeros(1, np.int64)
+    no_hits = (np.zeros(0, np.int32), np.zeros(0, np.float32))
+    m = n
+    for _ in range(4 * (cfg.max_depth + 1) + _MAX_CROSSINGS):
+        if m == 0:
+            break
+        st = tuple(a[:m] for a in cur)
+        prim, tfar, hu, hv = accel.intersect_fast(st[5], st[6])
+        bhits = maccel.intersect_fast(st[5], st[6])[:2] if cfg.has_media else no_hits
+        m, nq = vol_bounce(ks, comp.alpha, comp.eta, comp.k, comp.media, cfg, prim, tfar, hu, hv, *bhits, *st, L,
+                           *nxt, *q, err)
+        if err[0]:
+            _raise_majorant(ctx, err)
+        if nq:
+            occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
+            if not cfg.has_media:
+                add_unoccluded(L, q[3][:, 0], q[5], occ)
+            else:
+                ns = shadow_start(occ, *q, *walk)
+                for _c in range(_MAX_CROSSINGS):
+                    if ns == 0:
+                        break
+                    bp, bt = maccel.intersect_fast(walk[0][:ns], walk[1][:ns])[:2]
+                    ns = shadow_media_step(comp.media, ns, bp, bt, *walk, L, err)
+                    if err[0]:
+                        _raise_majorant(ctx, err)
+                if ns:
+                    shadow_flush(ns, walk[3], walk[5], walk[6], L)
+        cur, nxt = nxt, cur
+    return pix, L
 
 
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
                   effects: frozenset, prepared: PreparedScene, progress=None,
                   ctx: VolContext | None = None) -> RenderResult:
-    """Render samples [a, b) = ``sample_range`` with volpath (the registry's interface; progress
-    unused). Batches of ``settings.batch_paths`` camera samples, each with its own Generator
-    seeded by (seed, a, b, batch start)."""
+    """Render samples [a, b) = ``sample_range`` with volpath's compiled kernels (the registry's
+    interface). Batches of ``settings.batch_paths`` camera samples over ``settings.threads``
+    threads, accumulated in batch order; every random number is a function of (seed, pixel,
+    sample, dimension), so the bytes do not depend on threads or batch size. progress: optional
+    ``progress(done_paths, total_paths)`` after each batch."""
+    t0 = time.perf_counter()
+    ps = prepared
+    ctx = ctx if ctx is not None else volpath_context(scene, ps)
+    comp = _compiled_of(ctx)
+    a, b = sample_range
+    k = camera.intrinsics
+    npix = k.width * k.height
+    total = npix * (b - a)
+    mid0 = -1
+    if ctx.media is not None:
+        mid0 = int(ctx.media.medium_at(camera.cam_to_world[:3, 3][None])[0])
+    cfg = VolConfig(max_depth=int(settings.max_depth), rr_depth=int(options.rr_depth), roulette=bool(options.roulette),
+                    caustics="caustics" in effects, strategy=_STRATEGY_CODES[options.strategy],
+                    mis_exponent=heuristic_exponent(options.heuristic), has_bg=bool(ps.background.max() > 0),
+                    has_media=ctx.media is not None, has_lights=not ps.lights.empty)
+    chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
+    kernel_scene_of(ps)
+
+    def work(chunk):
+        return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a)
+
+    film = Film(k.width, k.height)
+    pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
+    try:
+        results = pool.map(work, chunks) if pool is not None else map(work, chunks)
+        for ch, (pix, L) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
+            if not np.all(np.isfinite(L)):
+                raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
+            accumulate(film.s1, film.s2, film.n, pix, L)
+            if progress is not None:
+                progress(ch[1], total)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(total)}
+    return RenderResult.from_film(film, (a, b), "volpath", stats)
+
+
+def render_result_numpy(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
+                  effects: frozenset, prepared: PreparedScene, progress=None,
+                  ctx: VolContext | None = None) -> RenderResult:
+    """The numpy reference of :func:`render_result` (same estimator, its own random numbers):
+    samples [a, b) = ``sample_range`` (progress unused). Batches of ``settings.batch_paths``
+    camera samples, each with its own Generator seeded by (seed, a, b, batch start), so its
+    bytes depend on the batch size; the compiled one's do not."""
     t0 = time.perf_counter()
     ps = prepared
     ctx = ctx if ctx is not None else volpath_context(scene, ps)
