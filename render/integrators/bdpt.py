@@ -66,7 +66,9 @@ Secondary and shadow rays start at :func:`render.accel.spawn_origin` offsets.
 """
 from __future__ import annotations
 
+import queue
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,11 +78,14 @@ from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
 from ..camera import Camera
 from ..film import Film, RenderResult
 from ..lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
-from ..sampling import INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from ..sampling import _GOLDEN, _mix64, INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
+from .bdpt_kernels import N_FIELDS, N_STATE, BdptConfig, connect, extend, prefix_sums, queue_bound, start_camera, start_light
+from .path import kernel_scene_of, pinhole_of
+from .path_kernels import add_unoccluded
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent, parse_sample_range
 
-__all__ = ["Options", "render_bdpt", "render_result"]
+__all__ = ["Options", "render_bdpt", "render_bdpt_numpy", "render_result"]
 
 # how a density leaving a vertex converts to an area density at the previous one
 _SURF, _POINTLIKE, _INFINITE = 0, 1, 2
@@ -677,11 +682,12 @@ def _render_chunk(ctx: _Ctx, seed: int, sample0: int, n_pass: int, pix0: int, pi
 
 
 # ---------------------------------------------------------------- the integrator
-def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0, prepared=None, *,
-                sample_range: tuple[int, int] | None = None, roulette: bool = True, rr_depth: int = 3,
-                caustics: bool = True, heuristic: str = "power", batch_paths: int = _DEFAULT_BATCH,
-                strategies=None) -> RenderResult:
-    """Render ``camera``'s view of ``scene`` by bidirectional path tracing.
+def render_bdpt_numpy(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0, prepared=None, *,
+                      sample_range: tuple[int, int] | None = None, roulette: bool = True, rr_depth: int = 3,
+                      caustics: bool = True, heuristic: str = "power", batch_paths: int = _DEFAULT_BATCH,
+                      strategies=None) -> RenderResult:
+    """Render ``camera``'s view of ``scene`` by bidirectional path tracing, numpy wavefront (the
+    tested reference of the compiled :func:`render_bdpt`: the same estimator and random numbers).
 
     spp: passes (one eye and one light subpath per pixel each) when no sample_range is given.
     sample_range: half-open range of pass indices [a, b) (renders of disjoint ranges merge).
@@ -737,6 +743,182 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
     return RenderResult.from_film(film, (a, b), "bdpt", stats)
 
 
+# ---------------------------------------------------------------- the compiled integrator
+def _kernel_config(ctx: _Ctx) -> BdptConfig:
+    """The kernels' :class:`render.integrators.bdpt_kernels.BdptConfig` of a render."""
+    nv_e, nv_l = ctx.max_depth + 2, ctx.max_depth + 1
+    if ctx.only is None:
+        use = np.ones((nv_l + 1, nv_e + 1), np.bool_)
+    else:
+        use = np.zeros((nv_l + 1, nv_e + 1), np.bool_)
+        for s, t in ctx.only:
+            if 0 <= s <= nv_l and 0 <= t <= nv_e:
+                use[s, t] = True
+    k = ctx.camera.intrinsics
+    centre, radius = scene_bounds(ctx.ps.geom)
+    return BdptConfig(ctx.max_depth, nv_e, nv_l, ctx.roulette, ctx.rr_depth, ctx.caustics, float(ctx.hexp),
+                      ctx.only is None, use, bool(ctx.ps.background.max() > 0), float(radius),
+                      np.ascontiguousarray(centre, dtype=np.float64), int(k.width), int(k.height),
+                      float(k.width * k.height / (k.fx * k.fy)))
+
+
+def _walk_compiled(ks, cfg: BdptConfig, accel, light: bool, m: int, bufs, keys, V, Fl, Iv, img, tgt) -> int:
+    """Extend m subpaths whose first rays are in bufs[0] vertex by vertex (one Embree query and
+    one :func:`render.integrators.bdpt_kernels.extend` per vertex). Returns the rays traced."""
+    cur, nxt = bufs
+    rays = 0
+    for i in range(1, cfg.nv_l if light else cfg.nv_e):
+        if m == 0:
+            break
+        prim, _, hu, hv = accel.intersect_fast(cur[2][:m], cur[3][:m])
+        rays += m
+        m = extend(ks, cfg, i, light, prim, hu, hv, m, cur[0], cur[1], keys, V, Fl, Iv, img, tgt, *nxt)
+        cur, nxt = nxt, cur
+    return rays
+
+
+class _Workspace:
+    """The buffers of one batch of up to ``n`` camera samples (reused batch after batch by one
+    thread: fresh zeroed arrays would cost their page faults every batch). Vertex fields that a
+    kernel reads are written first (flags are cleared per batch, pdfRev when a vertex is stored),
+    so nothing leaks from one batch into the next."""
+
+    def __init__(self, cfg: BdptConfig, n: int):
+        self.n = n
+        self.E, self.L = np.zeros((n, cfg.nv_e, N_FIELDS)), np.zeros((n, cfg.nv_l, N_FIELDS))
+        self.EF, self.LF = np.zeros((n, cfg.nv_e), np.uint8), np.zeros((n, cfg.nv_l), np.uint8)
+        self.EI, self.LI = np.zeros((n, cfg.nv_e, 2), np.int64), np.zeros((n, cfg.nv_l, 2), np.int64)
+        self.keys_e, self.keys_l, self.tgt = np.empty(n, np.uint64), np.empty(n, np.uint64), np.empty(n, np.int64)
+        self.lkind = np.empty(n, np.int64)
+        self.bufs = tuple((np.empty(n, np.int64), np.empty((n, N_STATE)), np.empty((n, 3), np.float32),
+                           np.empty((n, 3), np.float32)) for _ in range(2))
+        cap = max(8 * n, 4 * queue_bound(cfg.max_depth))
+        self.queue = (np.empty((cap, 3), np.float32), np.empty((cap, 3), np.float32), np.empty(cap, np.float32),
+                      np.empty(cap, np.int64), np.empty((cap, 3)))
+
+
+def _render_chunk_compiled(ps: PreparedScene, cfg: BdptConfig, cam, seed_mix, ws: _Workspace, sample0: int,
+                           n_pass: int, pix0: int, pix1: int) -> tuple[np.ndarray, int]:
+    """:func:`_render_chunk` through the compiled kernels in workspace ``ws``: ((n_pass H W, 3)
+    float64 pass images, rays traced)."""
+    ks = kernel_scene_of(ps)
+    accel = ps.accel
+    npc = pix1 - pix0
+    N = n_pass * npc
+    E, L, EF, LF, EI, LI = ws.E[:N], ws.L[:N], ws.EF[:N], ws.LF[:N], ws.EI[:N], ws.LI[:N]
+    EF[:] = 0
+    LF[:] = 0
+    keys_e, keys_l, tgt, lkind = ws.keys_e[:N], ws.keys_l[:N], ws.tgt[:N], ws.lkind[:N]
+    lkind[:] = AREA
+    bufs = ws.bufs
+    img = np.zeros((n_pass * cfg.width * cfg.height, 3))
+    start_camera(cfg, cam, seed_mix, sample0, pix0, npc, keys_e, keys_l, tgt, E, EF, *bufs[0])
+    rays = _walk_compiled(ks, cfg, accel, False, N, bufs, keys_e, E, EF, EI, img, tgt)
+    m = start_light(ks, cfg, keys_l, L, LF, lkind, *bufs[0])
+    rays += _walk_compiled(ks, cfg, accel, True, m, bufs, keys_l, L, LF, LI, img, tgt)
+    prefix_sums(E, EF, cfg.hexp, False, lkind)
+    prefix_sums(L, LF, cfg.hexp, True, lkind)
+    q = ws.queue
+    k = 0
+    while k < N:
+        k, nq = connect(ks, cfg, cam, k, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img, *q)
+        if nq:
+            occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
+            rays += nq
+            add_unoccluded(img, q[3], q[4], occ)
+    return img, rays
+
+
+def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0, prepared=None, *,
+                sample_range: tuple[int, int] | None = None, roulette: bool = True, rr_depth: int = 3,
+                caustics: bool = True, heuristic: str = "power", batch_paths: int = _DEFAULT_BATCH,
+                strategies=None, threads: int = 1) -> RenderResult:
+    """Render ``camera``'s view of ``scene`` by bidirectional path tracing (compiled kernels,
+    :mod:`render.integrators.bdpt_kernels`; the same estimator and random numbers as
+    :func:`render_bdpt_numpy`).
+
+    spp: passes (one eye and one light subpath per pixel each) when no sample_range is given.
+    sample_range: half-open range of pass indices [a, b) (renders of disjoint ranges merge).
+    max_depth: maximum scattering events of a full path. seed: the render's seed.
+    prepared: a :class:`PreparedScene` to reuse. roulette, rr_depth: Russian
+    roulette on subpath extension. caustics: False drops caustic paths (module docstring).
+    heuristic: "power" (default) or "balance". batch_paths: subpaths per wavefront batch (whole
+    passes are batched together; a large image's pass is split over pixels); it does not change
+    the per-pass images, only summation order. threads: batches traced at once (the film sums
+    them in batch order: the same bytes whatever the threads).
+    strategies: None (all strategies, MIS-weighted) or a collection of (s, t) pairs to evaluate
+    *unweighted*, alone (a diagnostic: each strategy alone is an unbiased estimate of the paths
+    it can sample; the background counts as s = 0).
+
+    Returns a :class:`render.film.RenderResult`: mean (H, W, 3) float32 and the variance of the
+    mean from the per-pass images, integrator "bdpt", stats (time_s, paths, rays, passes).
+    """
+    t0 = time.perf_counter()
+    a, b = parse_sample_range(spp, sample_range, "bdpt")
+    if int(max_depth) < 0 or int(rr_depth) < 0 or int(batch_paths) < 1 or int(threads) < 1:
+        raise ValueError("bdpt: max_depth and rr_depth must be >= 0, batch_paths and threads >= 1")
+    if heuristic not in ("power", "balance"):
+        raise ValueError(f"bdpt: heuristic must be power or balance, got {heuristic!r}")
+    ps = prepared if prepared is not None else prepare(scene)
+    _check_supported(scene, ps.mats, camera)
+    only = None if strategies is None else frozenset((int(s), int(t)) for s, t in strategies)
+    ctx = _Ctx(ps, camera, int(max_depth), bool(roulette), int(rr_depth), bool(caustics),
+               heuristic_exponent(heuristic), only, scene_bounds(ps.geom)[1])
+    cfg = _kernel_config(ctx)
+    cam = pinhole_of(camera)
+    kernel_scene_of(ps)
+    k = camera.intrinsics
+    npix = k.width * k.height
+    film = Film(k.width, k.height)
+    seed_mix = _mix64(np.array([np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
+    batch = int(batch_paths)
+    # units: (first pass, passes, pixel range); a unit's image is whole passes, or one pass's pixel slice
+    if npix <= batch:
+        per = max(1, batch // npix)
+        units = [(s0, min(per, b - s0), 0, npix) for s0 in range(a, b, per)]
+    else:
+        units = [(s0, 1, p0, min(p0 + batch, npix)) for s0 in range(a, b) for p0 in range(0, npix, batch)]
+
+    n_max = max(n_pass * (p1 - p0) for _, n_pass, p0, p1 in units)
+    spare = queue.SimpleQueue()  # workspaces not in use (at most one per thread is ever made)
+
+    def work(u):
+        try:
+            ws = spare.get_nowait()
+        except queue.Empty:
+            ws = _Workspace(cfg, n_max)
+        try:
+            return _render_chunk_compiled(ps, cfg, cam, seed_mix, ws, *u)
+        finally:
+            spare.put(ws)
+
+    def add(img: np.ndarray) -> None:
+        if not np.all(np.isfinite(img)):
+            raise FloatingPointError("bdpt produced a non-finite radiance (a bug: please report)")
+        x = img.reshape(-1, npix, 3)
+        film.add_moments(x.sum(0), (x * x).sum(0), np.full(npix, len(x), np.int64))
+
+    rays = 0
+    pending = None  # a pass's image while its pixel slices arrive (large images)
+    pool = ThreadPoolExecutor(int(threads)) if int(threads) > 1 and len(units) > 1 else None
+    try:
+        results = pool.map(work, units) if pool is not None else map(work, units)
+        for (s0, n_pass, p0, p1), (img, nr) in zip(units, results):  # in unit order: the same sums
+            rays += nr
+            if p0 == 0 and p1 == npix:
+                add(img)
+                continue
+            pending = img if p0 == 0 else pending + img
+            if p1 == npix:
+                add(pending)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(2 * npix * (b - a)), "rays": int(rays),
+             "passes": int(b - a)}
+    return RenderResult.from_film(film, (a, b), "bdpt", stats)
+
+
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
                   effects: frozenset, prepared: PreparedScene, progress=None) -> RenderResult:
     """:func:`render_bdpt` of passes [a, b) = ``sample_range`` (the registry's interface; progress
@@ -746,4 +928,4 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     return render_bdpt(scene, camera, settings.spp, max_depth=settings.max_depth, seed=settings.seed,
                        prepared=prepared, sample_range=sample_range, roulette=options.roulette,
                        rr_depth=options.rr_depth, caustics="caustics" in effects, heuristic=options.heuristic,
-                       batch_paths=min(settings.batch_paths, _DEFAULT_BATCH))
+                       batch_paths=min(settings.batch_paths, _DEFAULT_BATCH), threads=settings.threads)
