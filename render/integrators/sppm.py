@@ -77,7 +77,7 @@ from .path import kernel_scene_of, pinhole_of
 from .path_kernels import sample_camera_rays
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings
-from .sppm_kernels import (add_unoccluded_direct, build_grid, emit_photons, eye_bounce, gather, photon_bounce,
+from .sppm_kernels import (add_unoccluded_direct, emit_photons, eye_bounce, gather_update, photon_bounce,
                            photon_keys)
 
 __all__ = ["Options", "SPPMResult", "render_sppm", "render_sppm_numpy", "render_result", "photon_pass_at", "direct_at", "ALPHA", "GROUPS"]
@@ -505,24 +505,28 @@ def render_sppm_numpy(scene, camera: Camera, passes: int, photons_per_pass: int,
 # ---------------------------------------------------------------- the integrator: compiled
 #: rays per wavefront batch of the compiled passes (fixed: batch boundaries never change the bytes)
 _BATCH = 1 << 15
+#: eye paths + photons traced together: consecutive passes are traced as one block (their rays do
+#: not depend on each other's gathers) so small images do not pay the per-bounce overhead per pass
+_BLOCK_RAYS = 4 * _BATCH
 
 
-class _PassBuffers:
-    """One compiled pass's per-pixel outputs (npix pixels): direct (npix, 3) and the visible
-    points (ok (npix,) bool, depth (npix,) int64, p, ng, n, w (npix, 3), footprint (npix,)),
-    filled by disjoint pixel ranges (so threads never write the same row)."""
+class _BlockBuffers:
+    """A block's per-(pass, pixel) outputs, row = pass in block x npix + pixel: direct (rows, 3)
+    and the visible points (ok (rows,) bool, depth (rows,) int64, p, ng, n, w (rows, 3),
+    footprint (rows,)), filled by disjoint row ranges (threads never write the same row)."""
 
-    def __init__(self, npix: int):
-        self.direct = np.zeros((npix, 3))
-        self.ok = np.zeros(npix, np.bool_)
-        self.depth = np.zeros(npix, np.int64)
-        self.p, self.ng, self.n, self.w = (np.zeros((npix, 3)) for _ in range(4))
-        self.footprint = np.zeros(npix)
+    def __init__(self, rows: int):
+        self.direct = np.zeros((rows, 3))
+        self.ok = np.zeros(rows, np.bool_)
+        self.depth = np.zeros(rows, np.int64)
+        self.p, self.ng, self.n, self.w = (np.zeros((rows, 3)) for _ in range(4))
+        self.footprint = np.zeros(rows)
 
 
-def _eye_batch(ps, ks, camera: Camera, pinhole, seed_mix, pass_index: int, start: int, stop: int, max_depth: int,
-               out: _PassBuffers) -> int:
-    """Eye paths of pixels [start, stop) of pass ``pass_index`` into ``out``; returns rays traced."""
+def _eye_batch(ps, ks, camera: Camera, pinhole, seed_mix, pass0: int, start: int, stop: int, max_depth: int,
+               out: _BlockBuffers) -> int:
+    """Eye paths of block rows [start, stop) (row = (pass - pass0) npix + pixel) into ``out``;
+    returns rays traced."""
     accel = ps.accel
     k = camera.intrinsics
     npix = k.width * k.height
@@ -535,20 +539,21 @@ def _eye_batch(ps, ks, camera: Camera, pinhole, seed_mix, pass_index: int, start
          np.empty((n, 3)))
     jit = np.empty((n, 2))
     is_pinhole = not k.has_distortion
-    sample_camera_rays(start, stop, npix, k.width, pass_index, seed_mix, pinhole, is_pinhole, cur[1], cur[0],
+    sample_camera_rays(start, stop, npix, k.width, pass0, seed_mix, pinhole, is_pinhole, cur[1], cur[0],
                        cur[4], cur[5], jit)
     if not is_pinhole:
         o, d = camera.pixel_rays(jit)
         cur[4][:], cur[5][:] = o, d
+    cur[0][:] = np.arange(start, stop)  # the paths' output rows
     inv_fx = 1.0 / max(k.fx, 1e-300)
     rays, m = 0, n
     for depth in range(max_depth + 1):
         if m == 0:
             break
-        pix, keys, beta, plen, o32, d32 = (a[:m] for a in cur)
+        row, keys, beta, plen, o32, d32 = (a[:m] for a in cur)
         prim, tfar, hu, hv = accel.intersect_fast(o32, d32)
         rays += m
-        m, nq = eye_bounce(ks, depth, max_depth, inv_fx, prim, tfar, hu, hv, pix, keys, beta, plen, d32, out.direct,
+        m, nq = eye_bounce(ks, depth, max_depth, inv_fx, prim, tfar, hu, hv, row, keys, beta, plen, d32, out.direct,
                            out.ok, out.depth, out.p, out.ng, out.n, out.w, out.footprint, *nxt, *q)
         if nq:
             occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
@@ -558,50 +563,32 @@ def _eye_batch(ps, ks, camera: Camera, pinhole, seed_mix, pass_index: int, start
     return rays
 
 
-def _photon_batch(ps, ks, bounds, seed_mix, pass_index: int, start: int, stop: int, max_depth: int, caustics: bool):
-    """Photons [start, stop) of pass ``pass_index``: (stored (p, wi, flux (P, 3), depth (P,)), rays)."""
+def _photon_batch(ps, ks, bounds, seed_mix, pass0: int, per_pass: int, start: int, stop: int, max_depth: int,
+                  caustics: bool):
+    """Photons of flat indices [start, stop) (flat = (pass - pass0) per_pass + index): (stored
+    (p, wi, flux (P, 3), depth, flat index (P,)), rays traced)."""
     accel = ps.accel
-    keys = photon_keys(seed_mix, pass_index, start, stop)
     n = stop - start
-    cur = [keys, np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
-    nxt = [np.empty(n, np.uint64), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
-    m = emit_photons(ks, bounds[0], bounds[1], cur[0], cur[2], cur[3], cur[1])
+    cur = [photon_keys(seed_mix, pass0, per_pass, start, stop), np.arange(start, stop, dtype=np.int64),
+           np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)]
+    nxt = [np.empty(n, np.uint64), np.empty(n, np.int64), np.empty((n, 3)), np.empty((n, 3), np.float32),
+           np.empty((n, 3), np.float32)]
+    m = emit_photons(ks, bounds[0], bounds[1], cur[0], cur[1], cur[3], cur[4], cur[2])
     stored = []
     rays = 0
     for depth in range(max_depth):  # a photon hit at depth >= max_depth can never be counted
         if m == 0:
             break
-        keys, beta, o32, d32 = (a[:m] for a in cur)
+        keys, idx, beta, o32, d32 = (a[:m] for a in cur)
         prim, _, hu, hv = accel.intersect_fast(o32, d32)
         rays += m
-        s = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.int64))
-        m, ns = photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, beta, d32,
-                              nxt[0], nxt[1], nxt[2], nxt[3], *s, 0)
+        s = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty(m, np.int64), np.empty(m, np.int64))
+        m, ns = photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, idx, beta, d32,
+                              nxt[0], nxt[1], nxt[2], nxt[3], nxt[4], *s, 0)
         if ns:
             stored.append(tuple(a[:ns] for a in s))
         cur, nxt = nxt, cur
-    if stored:
-        cols = tuple(np.concatenate(c) for c in zip(*stored))
-    else:
-        cols = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64))
-    return cols, rays
-
-
-def _gather_compiled(out: _PassBuffers, rows: np.ndarray, R: np.ndarray, photons, max_depth: int, pool):
-    """(Phi (V, 3), M (V,)) at the visible points of pixels ``rows`` (V,) (radii R (npix,))."""
-    npix = len(R)
-    phi, count = np.zeros((npix, 3)), np.zeros(npix, np.int64)
-    p, wi, flux, depth = photons
-    if len(rows) and len(p):
-        cell = float(R[rows].max())
-        cells, start, order = build_grid(p, cell)
-
-        def run(a):
-            gather(rows[a:a + _BATCH], out.p, out.n, out.w, out.depth, R, cell, cells, start, order, p, wi, flux,
-                   depth, max_depth, phi, count)
-
-        list(_map(pool, run, range(0, len(rows), _BATCH)))
-    return phi[rows], count[rows].astype(np.float64)
+    return stored, rays
 
 
 def _map(pool, fn, items):
@@ -628,11 +615,14 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     passes) draws the same numbers whatever else is rendered. threads: worker threads (None:
     the BVH's); the bytes do not depend on them.
 
-    Each pass runs the kernels of :mod:`render.integrators.sppm_kernels` in batches of _BATCH
-    eye paths or photons (eye and photon batches of a pass run concurrently), then gathers with
-    a hash grid over the stored photons. Random numbers: the hash keyed by (seed, pass, pixel)
-    (eye paths: ``path``'s keys of sample ``pass``) and (seed, pass, photon).
-    :func:`render_sppm_numpy` is the same estimator in numpy, its tested reference.
+    Passes are traced in blocks of about _BLOCK_RAYS eye paths + photons (one pass when the
+    image alone is that large; one pass at a time when a callback is given), in batches of
+    _BATCH rays run by the kernels of :mod:`render.integrators.sppm_kernels` over the threads;
+    then pass by pass, in order, the stored photons (sorted by photon index and depth: an order
+    no batching changes) are gathered on a hash grid and the radii updated. Random numbers: the
+    hash keyed by (seed, pass, pixel) (eye paths: ``path``'s keys of sample ``pass``) and (seed,
+    pass, photon). :func:`render_sppm_numpy` is the same estimator in numpy, its tested
+    reference. history's time_s: the pass's share of its block's time.
     """
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
@@ -651,39 +641,56 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     seed_mix = _mix64(np.array([np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     nthreads = ps.accel.threads if threads is None else max(1, int(threads))
     pool = ThreadPoolExecutor(nthreads) if nthreads > 1 else None
+    block = 1 if callback is not None else max(1, _BLOCK_RAYS // (npix + photons_per_pass))
     history = []
     rays = 0
     try:
-        for it in range(passes):
-            tp = time.perf_counter()
-            gp = first_pass + it
-            out = _PassBuffers(npix)
-            eye_jobs = [("eye", a, min(a + _BATCH, npix)) for a in range(0, npix, _BATCH)]
-            photon_jobs = [("photon", a, min(a + _BATCH, photons_per_pass)) for a in range(0, photons_per_pass, _BATCH)]
+        for b0 in range(0, passes, block):
+            tb = time.perf_counter()
+            nb = min(block, passes - b0)
+            pass0 = first_pass + b0
+            out = _BlockBuffers(nb * npix)
+            n_eye, n_ph = nb * npix, nb * photons_per_pass
+            jobs = ([("eye", a, min(a + _BATCH, n_eye)) for a in range(0, n_eye, _BATCH)]
+                    + [("photon", a, min(a + _BATCH, n_ph)) for a in range(0, n_ph, _BATCH)])
 
             def work(job):
                 kind, a, b = job
                 if kind == "eye":
-                    return _eye_batch(ps, ks, camera, pinhole, seed_mix, gp, a, b, max_depth, out)
-                return _photon_batch(ps, ks, bounds, seed_mix, gp, a, b, max_depth, caustics)
+                    return [], _eye_batch(ps, ks, camera, pinhole, seed_mix, pass0, a, b, max_depth, out)
+                return _photon_batch(ps, ks, bounds, seed_mix, pass0, photons_per_pass, a, b, max_depth, caustics)
 
-            results = list(_map(pool, work, eye_jobs + photon_jobs))
-            rays += sum(results[:len(eye_jobs)])
-            batches = results[len(eye_jobs):]
-            rays += sum(r for _, r in batches)
-            photons = tuple(np.concatenate(c) for c in zip(*(s for s, _ in batches)))
-            state.add_direct(out.direct)
-            rows = np.nonzero(out.ok)[0]
-            if it == 0:
-                state.start(out.footprint[rows], initial_radius, extent)
-            phi, M = _gather_compiled(out, rows, state.R, photons, max_depth, pool)
-            state.add_photons(rows, phi, M)
-            history.append({"pass": it + 1, "mean_radius": float(state.R.mean()), "min_radius": float(state.R.min()),
-                            "visible_points": int(len(rows)), "stored_photons": int(len(photons[0])),
-                            "gathered": int(M.sum()), "time_s": time.perf_counter() - tp})
-            if callback is not None:
-                callback(it + 1, state.estimate(it + 1, photons_per_pass).reshape(h, w, 3),
-                         state.R.reshape(h, w).copy())
+            stored = []
+            for parts, nr in _map(pool, work, jobs):
+                stored.extend(parts)
+                rays += nr
+            if stored:
+                p, wi, flux, depth, idx = (np.concatenate(c) for c in zip(*stored))
+            else:
+                p, wi, flux = np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
+                depth, idx = np.zeros(0, np.int64), np.zeros(0, np.int64)
+            order = np.argsort(idx * (max_depth + 1) + depth, kind="stable")  # canonical: batching never changes it
+            p, wi, flux, depth, idx = p[order], wi[order], flux[order], depth[order], idx[order]
+            cuts = np.searchsorted(idx, np.arange(nb + 1) * photons_per_pass)
+            dt = (time.perf_counter() - tb) / nb
+            for j in range(nb):
+                tp = time.perf_counter()
+                r0, r1 = j * npix, (j + 1) * npix
+                c0, c1 = cuts[j], cuts[j + 1]
+                state.add_direct(out.direct[r0:r1])
+                ok = out.ok[r0:r1]
+                if b0 + j == 0:
+                    state.start(out.footprint[r0:r1][ok], initial_radius, extent)
+                gathered = gather_update(ok, out.p[r0:r1], out.n[r0:r1], out.w[r0:r1], out.depth[r0:r1],
+                                         p[c0:c1], wi[c0:c1], flux[c0:c1], depth[c0:c1], max_depth, alpha,
+                                         state.r_floor, state.R, state.N, state.tau)
+                history.append({"pass": b0 + j + 1, "mean_radius": float(state.R.mean()),
+                                "min_radius": float(state.R.min()), "visible_points": int(ok.sum()),
+                                "stored_photons": int(c1 - c0), "gathered": int(gathered),
+                                "time_s": dt + time.perf_counter() - tp})
+                if callback is not None:
+                    callback(b0 + j + 1, state.estimate(b0 + j + 1, photons_per_pass).reshape(h, w, 3),
+                             state.R.reshape(h, w).copy())
     finally:
         if pool is not None:
             pool.shutdown()

@@ -38,12 +38,12 @@ import math
 import numpy as np
 from numba import njit
 
-from .path_kernels import (_COS_FLOOR, _GOLDEN, _INV_PI, _JIT, _M2, _TMAX_CAP, DIELECTRIC, DIRECTIONAL, LAMBERT,
+from .path_kernels import (_GOLDEN, _INV_PI, _JIT, _M2, _TMAX_CAP, DIELECTRIC, DIRECTIONAL, LAMBERT,
                            MIRROR, POINT, SAMPLER_INDEPENDENT, SPOT, _albedo, _frame, _mix64, _offset, _pick,
                            _queue_ray, _sample_area, _sample_delta, _sample_specular, _uniform)
 
 __all__ = ["eye_bounce", "add_unoccluded_direct", "photon_keys", "emit_photons", "photon_bounce", "build_grid",
-           "gather", "PHOTON_STREAM"]
+           "gather", "gather_update", "PHOTON_STREAM"]
 
 #: xor-ed into the seed's mix so photon keys never coincide with camera-path keys
 PHOTON_STREAM = np.uint64(0x243F6A8885A308D3)
@@ -174,13 +174,14 @@ def add_unoccluded_direct(direct, q_idx, q_val, occ):
 
 # ------------------------------------------------------------------ photons
 @njit(**_JIT)
-def photon_keys(seed_mix, pass_index, start, stop):
-    """(stop - start,) uint64 RNG keys of photons [start, stop) of pass ``pass_index``:
-    mix64(mix64(seed_mix ^ PHOTON_STREAM ^ pass M2) ^ index golden)."""
-    k = _mix64(seed_mix ^ PHOTON_STREAM ^ (np.uint64(pass_index) * _M2 + _GOLDEN))
+def photon_keys(seed_mix, pass0, per_pass, start, stop):
+    """(stop - start,) uint64 RNG keys of the photons of flat indices [start, stop), flat = (pass
+    - pass0) per_pass + index: mix64(mix64(seed_mix ^ PHOTON_STREAM ^ pass M2) ^ index golden)."""
     out = np.empty(stop - start, np.uint64)
     for i in range(stop - start):
-        out[i] = _mix64(k ^ (np.uint64(start + i) * _GOLDEN))
+        flat = start + i
+        pk = _mix64(seed_mix ^ PHOTON_STREAM ^ (np.uint64(pass0 + flat // per_pass) * _M2 + _GOLDEN))
+        out[i] = _mix64(pk ^ (np.uint64(flat % per_pass) * _GOLDEN))
     return out
 
 
@@ -191,11 +192,11 @@ def _to_world(lx, ly, lz, nx, ny, nz):
 
 
 @njit(**_JIT)
-def emit_photons(ks, centre, radius, keys, o32, d32, beta):
+def emit_photons(ks, centre, radius, keys, idx, o32, d32, beta):
     """One photon per key leaving the lights (render.lights.sample_emission): writes the
     survivors (non-zero flux), compacted in order, as float32 rays o32, d32 (N, 3) (area
-    sources: offset off the triangle on the emitting side), flux beta (N, 3) and their keys in
-    place of ``keys``. centre (3,), radius: the disk of directional lights
+    sources: offset off the triangle on the emitting side), flux beta (N, 3) and their keys
+    and tags (idx (N,) int64, e.g. flat photon indices) in place of ``keys`` and ``idx``. centre (3,), radius: the disk of directional lights
     (render.lights.scene_bounds). Returns the number of photons written."""
     extent, n_area = ks.scal[0], np.int64(ks.scal[2])
     cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos = ks.cdf, ks.pmf, ks.area, ks.d_kind, ks.d_pos, ks.d_dir, ks.d_I, ks.d_cos
@@ -265,18 +266,19 @@ def emit_photons(ks, centre, radius, keys, o32, d32, beta):
         d32[n, 0], d32[n, 1], d32[n, 2] = wx, wy, wz
         beta[n, 0], beta[n, 1], beta[n, 2] = f0, f1, f2
         keys[n] = key
+        idx[n] = idx[i]
         n += 1
     return n
 
 
 @njit(**_JIT)
-def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, beta, d32,
-                  n_keys, n_beta, n_o32, n_d32, s_p, s_wi, s_flux, s_depth, ns):
+def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, idx, beta, d32,
+                  n_keys, n_idx, n_beta, n_o32, n_d32, s_p, s_wi, s_flux, s_depth, s_idx, ns):
     """Process the hits of the live photons at ``depth`` (scattering events so far).
 
     A Lambertian hit stores the photon when depth >= 1 (the first hit is direct light, counted
     by next-event estimation): s_p position, s_wi (towards where it came from), s_flux, s_depth,
-    appended from row ns. Unless depth + 1 >= max_depth (no later hit could be counted), it
+    s_idx (the photon's tag idx), appended from row ns. Unless depth + 1 >= max_depth (no later hit could be counted), it
     scatters off Lambertian (cosine lobe about the normal facing it, weight = albedo), mirror
     and glass (render.bsdf's delta lobes; glass weight 1: importance transport) surfaces — off
     Lambertian ones alone when not ``caustics`` — and survives roulette with probability
@@ -308,6 +310,7 @@ def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, beta, d32,
             s_wi[ns, 0], s_wi[ns, 1], s_wi[ns, 2] = -dx, -dy, -dz
             s_flux[ns, 0], s_flux[ns, 1], s_flux[ns, 2] = b0, b1, b2
             s_depth[ns] = depth
+            s_idx[ns] = idx[i]
             ns += 1
         if depth + 1 >= max_depth:
             continue
@@ -339,6 +342,7 @@ def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, beta, d32,
             continue
         b0, b1, b2 = b0 * (f0 / q), b1 * (f1 / q), b2 * (f2 / q)
         n_keys[nn] = key
+        n_idx[nn] = idx[i]
         n_beta[nn, 0], n_beta[nn, 1], n_beta[nn, 2] = b0, b1, b2
         _queue_ray(n_o32, n_d32, nn, px, py, pz, ngx, ngy, ngz, _offset(px, py, pz, extent), wx, wy, wz)
         nn += 1
@@ -432,3 +436,42 @@ def gather(rows, vp_p, vp_n, vp_w, vp_depth, radius, cell, cells, start, order, 
         phi[v, 1] = s1 * vp_w[v, 1]
         phi[v, 2] = s2 * vp_w[v, 2]
         count[v] = m
+
+
+@njit(**_JIT)
+def gather_update(vp_ok, vp_p, vp_n, vp_w, vp_depth, ph_p, ph_wi, ph_flux, ph_depth, max_depth, alpha, r_floor,
+                  R, N, tau):
+    """One pass's gather and progressive update (render.integrators.sppm._Progressive.add_photons).
+
+    vp_*: the pass's visible points per pixel (ok (npix,) bool, p, n, w (npix, 3), depth
+    (npix,)); ph_*: its stored photons. R, N (npix,), tau (npix, 3): radii, photon counts and
+    rescaled flux, updated in place where M > 0 photons are found: N' = N + alpha M,
+    R' = max(R sqrt(N' / (N + M)), r_floor), tau' = (tau + Phi) (R' / R)^2.
+    Returns the number of photons gathered."""
+    rows = np.nonzero(vp_ok)[0]
+    if len(rows) == 0 or len(ph_p) == 0:
+        return 0
+    cell = 0.0
+    for v in rows:
+        cell = max(cell, R[v])
+    cells, start, order = build_grid(ph_p, cell)
+    npix = len(R)
+    phi = np.zeros((npix, 3))
+    count = np.zeros(npix, np.int64)
+    gather(rows, vp_p, vp_n, vp_w, vp_depth, R, cell, cells, start, order, ph_p, ph_wi, ph_flux, ph_depth, max_depth,
+           phi, count)
+    total = 0
+    for v in rows:
+        m = count[v]
+        if m == 0:
+            continue
+        total += m
+        n_new = N[v] + alpha * m
+        r_new = max(R[v] * math.sqrt(n_new / (N[v] + m)), r_floor)
+        ratio = r_new / R[v]
+        scale = ratio * ratio
+        for c in range(3):
+            tau[v, c] = (tau[v, c] + phi[v, c]) * scale
+        N[v] = n_new
+        R[v] = r_new
+    return total

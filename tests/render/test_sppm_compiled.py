@@ -40,17 +40,17 @@ def test_emission_matches_sample_emission():
     ks = kernel_scene_of(ps)
     n = 20_000
     seed_mix = np.uint64(0x1234567890ABCDEF)
-    keys = photon_keys(seed_mix, 3, 0, n)
+    keys = photon_keys(seed_mix, 3, n, 0, n)  # pass 3's photons 0 .. n - 1
     ref = sample_emission(ps.lights, ps.geom, uniform(keys, 0), np.stack([uniform(keys, 1), uniform(keys, 2)], 1),
                           np.stack([uniform(keys, 3), uniform(keys, 4)], 1), uniform(keys, 5))
     live = ref.flux.max(axis=1) > 0
     assert len(np.unique(ref.kind[live])) == 4  # every light kind
     o32, d32, flux = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32), np.empty((n, 3))
     centre, radius = scene_bounds(ps.geom)
-    k = keys.copy()
-    m = emit_photons(ks, centre, radius, k, o32, d32, flux)
+    k, idx = keys.copy(), np.arange(n)
+    m = emit_photons(ks, centre, radius, k, idx, o32, d32, flux)
     assert m == live.sum()
-    assert np.array_equal(k[:m], keys[live])
+    assert np.array_equal(k[:m], keys[live]) and np.array_equal(idx[:m], np.nonzero(live)[0])
     np.testing.assert_allclose(flux[:m], ref.flux[live], rtol=1e-9)
     np.testing.assert_allclose(d32[:m], ref.d[live].astype(np.float32), atol=1e-6)
     np.testing.assert_allclose(o32[:m], ref.o[live].astype(np.float32), atol=1e-5)
@@ -118,14 +118,20 @@ def test_compiled_agrees_with_numpy_per_pixel():
 
 def test_bytes_independent_of_threads_and_batches(monkeypatch):
     """The compiled render is a pure function of (scene, camera, passes, photons, seed, first
-    pass): one thread or two, and batches of 37 rays instead of _BATCH, give the same bytes."""
+    pass): one thread or two, batches of 37 rays instead of _BATCH, passes traced one at a time
+    (as with a callback) instead of in blocks, give the same bytes; and the photon keys of a
+    block of passes are those of each pass alone."""
     sc, cam = caustic_scene()
     cam = Camera(Intrinsics.from_fov(12, 12, 45.0), cam.cam_to_world, "c12")
     ps = prepare(sc)
-    one = render_sppm(sc, cam, 2, 3_000, seed=9, prepared=ps, threads=1)
-    two = render_sppm(sc, cam, 2, 3_000, seed=9, prepared=ps, threads=2)
+    one = render_sppm(sc, cam, 3, 3_000, seed=9, prepared=ps, threads=1)
+    two = render_sppm(sc, cam, 3, 3_000, seed=9, prepared=ps, threads=2)
+    passes = render_sppm(sc, cam, 3, 3_000, seed=9, prepared=ps, callback=lambda *a: None)
     monkeypatch.setattr(sppm_module, "_BATCH", 37)
-    small = render_sppm(sc, cam, 2, 3_000, seed=9, prepared=ps, threads=2)
+    small = render_sppm(sc, cam, 3, 3_000, seed=9, prepared=ps, threads=2)
     assert one.mean.max() > 0
-    for r in (two, small):
+    for r in (two, passes, small):
         assert r.mean.tobytes() == one.mean.tobytes() and r.radius.tobytes() == one.radius.tobytes()
+    seed_mix = np.uint64(77)
+    block = photon_keys(seed_mix, 5, 100, 0, 300)
+    assert np.array_equal(block[100:200], photon_keys(seed_mix, 6, 100, 0, 100))
