@@ -15,8 +15,9 @@ XORed by its image of 0, maps every prefix [0, 2^m) onto itself, so each 2^m pre
 and groups are decorrelated without knowing the sample count), then the value is Owen-scrambled per
 (group, component).
 
-Replicates. For each pixel, the samples are split into ``REPLICATES`` interleaved replicates:
-sample s is point i = s div R of replicate r = s mod R, and every scramble is keyed by (seed,
+Replicates. For each pixel, the samples are split into R interleaved replicates (R =
+:func:`replicates_for` of the render's spp: 4, 8 or 16): sample s is point i = s div R of
+replicate r = s mod R, and every scramble is keyed by (seed,
 pixel, replicate, group). A render of samples [0, R 2^m) gives every replicate of every pixel a
 2^m-point prefix: in each 2-D group a (0, m, 2)-net (each elementary interval of volume 2^-m
 holds exactly one point), in each 1-D group one point per interval [k 2^-m, (k+1) 2^-m).
@@ -45,11 +46,32 @@ import numpy as np
 
 from .sampling import _GOLDEN, _M2, _mix64
 
-__all__ = ["REPLICATES", "SAMPLERS", "DIRECTIONS", "direction_numbers", "dimension_group", "sobol_u32",
+__all__ = ["REPLICATES", "MIN_REPLICATES", "replicates_for", "SAMPLERS", "DIRECTIONS", "direction_numbers", "dimension_group", "sobol_u32",
            "owen_scramble", "nested_scramble", "sobol_keys", "sobol_uniform", "sobol_block", "replicate_of"]
 
-#: independent scramblings per pixel, interleaved over the sample index (sample s: replicate s mod R)
+#: independent scramblings per pixel at most, interleaved over the sample index (sample s:
+#: replicate s mod R); renders of fewer samples use fewer (:func:`replicates_for`)
 REPLICATES = 16
+#: the fewest replicates (3 degrees of freedom in a pixel's variance estimate)
+MIN_REPLICATES = 4
+#: points per replicate that :func:`replicates_for` aims for before adding replicates
+_POINTS_PER_REPLICATE = 16
+
+
+def replicates_for(spp: int) -> int:
+    """R, the replicates of a render of ``spp`` samples per pixel (a power of two in
+    [MIN_REPLICATES, REPLICATES]): the largest R <= spp / 16, so that each replicate's points
+    are a 16-point (or larger) net before more replicates sharpen the variance estimate (4 at
+    spp < 128, 8 at spp < 256, 16 from 256 on). Stratification works within a replicate only:
+    with 16 replicates a 16-spp render holds one point per replicate and nothing is stratified
+    (measured on the Cornell box: bench/bench_sampler.py). R is a function of the render's
+    planned total spp (RenderSettings.spp), never of a sample range, so every unit of work of
+    one render (and its refinements) shares it; films of different R refuse to merge."""
+    r = MIN_REPLICATES
+    while r < REPLICATES and 2 * r * _POINTS_PER_REPLICATE <= int(spp):
+        r *= 2
+    return r
+
 #: the samplers of the compiled integrators (path, direct): name -> code in PathConfig.sampler
 SAMPLERS = {"independent": 0, "sobol": 1}
 
@@ -145,20 +167,21 @@ def nested_scramble(x: np.ndarray, h: np.ndarray) -> np.ndarray:
     return _reverse32(x)
 
 
-def sobol_keys(seed: int, pixel: np.ndarray, sample: np.ndarray) -> np.ndarray:
+def sobol_keys(seed: int, pixel: np.ndarray, sample: np.ndarray, replicates: int = REPLICATES) -> np.ndarray:
     """Per-path keys of the Sobol sampler: (N,) uint64 from a seed, (N,) pixel and (N,) sample
-    indices: high 32 bits hash (seed, pixel, sample mod REPLICATES), low 32 bits sample div
-    REPLICATES (the Sobol index)."""
+    indices: high 32 bits hash (seed, pixel, sample mod R), low 32 bits sample div R (the Sobol
+    index), R = ``replicates``."""
     s = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     sample = np.asarray(sample, dtype=np.uint64)
     k = _mix64(np.asarray(pixel, dtype=np.uint64) * _GOLDEN ^ s)
-    k = _mix64(k ^ ((sample % np.uint64(REPLICATES)) * _M2 + _GOLDEN))
-    return (k & _HI32) | ((sample // np.uint64(REPLICATES)) & _MASK32)
+    r = np.uint64(replicates)
+    k = _mix64(k ^ ((sample % r) * _M2 + _GOLDEN))
+    return (k & _HI32) | ((sample // r) & _MASK32)
 
 
-def replicate_of(sample: np.ndarray) -> np.ndarray:
-    """(N,) int64 replicate of each sample index (sample mod REPLICATES)."""
-    return np.asarray(sample, dtype=np.int64) % REPLICATES
+def replicate_of(sample: np.ndarray, replicates: int = REPLICATES) -> np.ndarray:
+    """(N,) int64 replicate of each sample index (sample mod ``replicates``)."""
+    return np.asarray(sample, dtype=np.int64) % int(replicates)
 
 
 def sobol_uniform(keys: np.ndarray, dim: int) -> np.ndarray:

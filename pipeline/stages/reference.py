@@ -36,6 +36,7 @@ from render import integrators
 from render.camera import Camera, Intrinsics
 from render.camera_io import write_cameras_json
 from render.integrators.settings import SAMPLER_NAMES
+from render.sobol import replicates_for
 from render.film import Film, merge_stats
 from render.image_io import write_exr, write_preview
 from rig.build import RigScene
@@ -231,6 +232,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     manifest = Manifest("reference", params={
         "scene": rig.scene.name, "views": views, "splits": sorted({s for s, _ in chosen}), "spp": spp, "seed": seed, "max_depth": max_depth,
         "sampler": getattr(options, "sampler", None),
+        # the Sobol sampler's replicates: the variance image has R - 1 degrees of freedom per pixel
+        "replicates": replicates_for(spp) if getattr(options, "sampler", None) == "sobol" else None,
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)

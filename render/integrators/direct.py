@@ -32,8 +32,8 @@ class Options:
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
     #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
-    #: variance, render.sobol; the reference stage's default)
-    sampler: str = "independent"
+    #: variance, render.sobol; the default)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         check_strategy(self.strategy)

@@ -36,13 +36,13 @@ specular vertices (from an emitter or the background) is dropped: the pruned ren
 the listed effects and nothing more.
 
 Random numbers are a pure function of (seed, pixel, sample index, dimension), so renders of
-disjoint sample ranges merge exactly (:func:`render.film.merge_results`): an independent hash
-per dimension (``sampler="independent"``, the library default, :mod:`render.sampling`; the
-variance image is the sample variance over n), or Owen-scrambled Sobol points (``sampler="sobol"``,
-:mod:`render.sobol`, the ``reference`` stage's default; sample s of a pixel is point s div R of
-its replicate s mod R, and the variance image comes from the R = 16 replicate means,
-:meth:`render.film.Film.variance`: R - 1 degrees of freedom per pixel, so per-pixel Z-tests
-against it need Student-t thresholds).
+disjoint sample ranges merge exactly (:func:`render.film.merge_results`): Owen-scrambled Sobol
+points (``sampler="sobol"``, the default, :mod:`render.sobol`; sample s of a pixel is point s div
+R of its replicate s mod R, R = render.sobol.replicates_for(spp) (4, 8 or 16), and the variance
+image comes from the R replicate means, :meth:`render.film.Film.variance`: R - 1 degrees of
+freedom per pixel, so per-pixel tests against it use Student-t thresholds), or an independent
+hash per dimension (``sampler="independent"``, :mod:`render.sampling`; the variance image is the
+sample variance over n).
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ from ..camera import Camera
 from ..film import Film, RenderResult
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
-from ..sobol import REPLICATES, SAMPLERS
+from ..sobol import REPLICATES, SAMPLERS, replicates_for
 from .path_kernels import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
                            PinholeCamera, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays,
                            kernel_scene, last_bounce_queue, shade_bounce)
@@ -82,8 +82,8 @@ class Options:
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
     #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
-    #: variance, render.sobol; the reference stage's default)
-    sampler: str = "independent"
+    #: variance, render.sobol; the default)
+    sampler: str = "sobol"
 
     def __post_init__(self):
         check_strategy(self.strategy)
@@ -145,9 +145,10 @@ def _last_ray_buffers(n: int) -> tuple:
 
 
 def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emitters: bool,
-           start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
+           start: int, stop: int, sample0: int, replicates: int = REPLICATES) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
-    + pixel). Returns ((N,) int64 pixels, (N, 3) float64 radiance, rays traced).
+    + pixel); replicates: the Sobol sampler's R (render.sobol.replicates_for). Returns ((N,)
+    int64 pixels, (N, 3) float64 radiance, rays traced).
 
     Wavefront: each bounce is one Embree call for all live paths, one compiled shading pass
     (:func:`render.integrators.path_kernels.shade_bounce`) that also writes the next rays and
@@ -169,7 +170,7 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
     sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                       cur[5], cur[6], jit, cfg.sampler)
+                       cur[5], cur[6], jit, cfg.sampler, replicates)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -222,15 +223,16 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     total = k.width * k.height * (b - a)
     chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
     kernel_scene_of(ps)
+    replicates = replicates_for(settings.spp)
 
     def work(chunk):
-        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a)
+        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, replicates)
 
     film = Film(k.width, k.height)
     npix = k.width * k.height
     if cfg.sampler == SAMPLER_SOBOL:
-        film.r1 = np.zeros((REPLICATES, npix, 3))
-        film.rn = np.bincount(np.arange(a, b) % REPLICATES, minlength=REPLICATES).astype(np.int64)
+        film.r1 = np.zeros((replicates, npix, 3))
+        film.rn = np.bincount(np.arange(a, b) % replicates, minlength=replicates).astype(np.int64)
     rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:

@@ -58,7 +58,6 @@ _HI32 = np.uint64(0xFFFFFFFF00000000)
 _U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
 _INV_2_32 = 1.0 / 4294967296.0
 _ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
-_REPLICATES = np.uint64(REPLICATES)
 
 
 class KernelScene(NamedTuple):
@@ -231,16 +230,17 @@ class PinholeCamera(NamedTuple):
 
 @njit(**_JIT)
 def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit,
-                       sampler=SAMPLER_INDEPENDENT):
+                       sampler=SAMPLER_INDEPENDENT, replicates=REPLICATES):
     """Camera samples of flat indices [start, stop): flat = (sample - sample0) * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a
     :class:`PinholeCamera`. Writes keys (N,) uint64 (render.sampling.path_keys, or
-    render.sobol.sobol_keys when ``sampler`` is SAMPLER_SOBOL), pix (N,) int64, jit (N, 2)
+    render.sobol.sobol_keys with ``replicates`` when ``sampler`` is SAMPLER_SOBOL), pix (N,) int64, jit (N, 2)
     jittered pixel positions (dims 0, 1), and when ``pinhole`` the unit rays o32, d32 (N, 3)
     float32 (what Embree traces and shading reads).
     """
     rot, origin = cam.rotation, cam.origin
+    nrep = np.uint64(replicates)
     for i in range(stop - start):
         flat = start + i
         p = flat % npix
@@ -248,7 +248,7 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
         k = _mix64(np.uint64(p) * _GOLDEN ^ seed_mix)
         if sampler == SAMPLER_SOBOL:  # hash of (seed, pixel, replicate) over the Sobol index
             us = np.uint64(s)
-            key = (_mix64(k ^ ((us % _REPLICATES) * _M2 + _GOLDEN)) & _HI32) | ((us // _REPLICATES) & _MASK32)
+            key = (_mix64(k ^ ((us % nrep) * _M2 + _GOLDEN)) & _HI32) | ((us // nrep) & _MASK32)
         else:
             key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
         keys[i] = key
@@ -418,13 +418,48 @@ def _queue_ray(o32, d32, n, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz):
 
 
 @njit(inline="always", **_JIT)
+def _queue_shadow_to(o32, d32, t32, n, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz, dist, lnx, lny, lnz, extent):
+    """Row n of a shadow-ray queue from point p (geometric normal ng, offset eps) to the light
+    point y = p + dist w (unit w; dist inf: a directional light, tmax the cap). As pbrt's
+    SpawnRayTo between two interactions: the origin is p offset along ng on w's side, the end
+    is y offset off the light's surface (unit normal ln; zero for point and spot lights) toward
+    p by render.accel's bound at y, and the ray is aimed from the one to the other, tmax its
+    length less 1e-4 of it. Aimed along w from the offset origin instead, a ray meeting the
+    light's plane at a grazing angle crossed it before tmax (the offset moved the crossing by
+    eps / sin(angle), more than the 1e-4 margin): with a light 1e-4 above a floor every
+    light sample from beside it was occluded by the light itself
+    (tests/render/test_hard_cases.py::test_shading_point_almost_touching_an_area_source)."""
+    side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
+    ox, oy, oz = px + side * ngx, py + side * ngy, pz + side * ngz
+    o32[n, 0], o32[n, 1], o32[n, 2] = ox, oy, oz
+    if dist == math.inf:
+        d32[n, 0], d32[n, 1], d32[n, 2] = wx, wy, wz
+        t32[n] = _TMAX_CAP
+        return
+    yx, yy, yz = px + dist * wx, py + dist * wy, pz + dist * wz
+    e = _offset(yx, yy, yz, extent)
+    if wx * lnx + wy * lny + wz * lnz > 0.0:  # toward p: against w along the light's normal
+        e = -e
+    yx, yy, yz = yx + e * lnx, yy + e * lny, yz + e * lnz
+    dx, dy, dz = yx - ox, yy - oy, yz - oz
+    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not r > 0.0:
+        d32[n, 0], d32[n, 1], d32[n, 2] = wx, wy, wz
+        t32[n] = 0.0
+        return
+    d32[n, 0], d32[n, 1], d32[n, 2] = dx / r, dy / r, dz / r
+    t32[n] = min(r * (1.0 - 1e-4), _TMAX_CAP)
+
+
+@njit(inline="always", **_JIT)
 def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
-                p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq):
+                p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq, extent):
     """Next-event estimation at a Lambertian vertex p (shading normal n, geometric ng; 3-tuples)
     of albedo a and throughput b (3-tuples): one light sample (pick, point: dimensions base ..
-    base + 2; the Sobol sampler picks with base + 1 and reuses it, rescaled, for the point), queued as a shadow ray with its unoccluded contribution. Returns the new queue
-    length. (Points and colours travel as tuples: CPython passes calls of more than 30
-    arguments as *args, which numba cannot inline.)"""
+    base + 2; the Sobol sampler picks with base + 1 and reuses it, rescaled, for the point),
+    queued as a shadow ray (:func:`_queue_shadow_to`) with its unoccluded contribution. Returns
+    the new queue length. (Points and colours travel as tuples: CPython passes calls of more
+    than 30 arguments as *args, which numba cannot inline.)"""
     px, py, pz = p
     nx, ny, nz = n
     ngx, ngy, ngz = ng
@@ -460,8 +495,11 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
     w = 1.0
     if cfg.strategy == STRAT_MIS and not ldelta:
         w = _mis(lpdf, cos_i * _INV_PI, cfg.mis_exponent)
-    _queue_ray(q_o32, q_d32, nq, px, py, pz, ngx, ngy, ngz, eps, lx, ly, lz)
-    q_t32[nq] = min(max(ldist * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
+    if ldelta:
+        lnx = lny = lnz = 0.0  # no surface at a point or spot light; a directional one is at infinity
+    else:
+        lnx, lny, lnz = area[k, 9], area[k, 10], area[k, 11]
+    _queue_shadow_to(q_o32, q_d32, q_t32, nq, px, py, pz, ngx, ngy, ngz, eps, lx, ly, lz, ldist, lnx, lny, lnz, extent)
     s = _INV_PI * cos_i * w / lpdf
     q_val[nq, 0] = b0 * a0 * L0 * s
     q_val[nq, 1] = b1 * a1 * L1 * s
@@ -613,7 +651,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
             if cfg.nee_any and has_lights:
                 nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
                                  (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
-                                 q_o32, q_d32, q_t32, q_idx, q_val, nq)
+                                 q_o32, q_d32, q_t32, q_idx, q_val, nq, extent)
             if not cfg.continue_diffuse:
                 continue
             wx, wy, wz, spdf, cos_s = _sample_cosine(cfg.sampler, key, base, nx, ny, nz)

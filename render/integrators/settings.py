@@ -71,8 +71,8 @@ class RenderSettings:
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth (path,
     volpath, bdpt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
-    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol) or
-    "independent" (direct, path).
+    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol; their default)
+    or "independent" (direct, path).
     """
 
     integrator: str = "auto"

@@ -86,28 +86,88 @@ def _blocks(img: np.ndarray, b: int, var: bool) -> np.ndarray:
     return x / (b ** 4 if var else b * b)
 
 
+#: degrees of freedom treated as infinite (the normal distribution)
+_DOF_INF = 1e7
+
+
+def variance_for_test(result) -> tuple[np.ndarray, np.ndarray]:
+    """((H, W, 3) float64 variance of each pixel mean, (H, W, 3) float64 its degrees of freedom)
+    as the image tests use them.
+
+    Independent samples (and the independent groups of sppm and pssmlt): the film's variance,
+    n - 1 degrees of freedom. The Sobol sampler (a film with replicate sums): the spread of its
+    R' replicate means (render.film.Film.variance), R' - 1 degrees of freedom, under which
+    (mean - truth) / sqrt(var) is Student's t when the replicate means are normal. They are not
+    where a pixel straddles an edge (a light's border: each replicate's stratified points put
+    the same count on the light, so all R' replicate means can coincide and the estimate is 0
+    while the error is not; seen on the Cornell box at 1024 spp). There the i.i.d. estimate
+    s^2 / n of the same samples is used whenever it is larger, with n - 1 degrees of freedom:
+    no pixel is held to a stricter yardstick than the same samples would be if independent."""
+    film = result.film
+    h, w = result.mean.shape[:2]
+    var = result.variance.astype(np.float64)
+    n = film.n.astype(np.float64).reshape(h, w, 1)
+    dof_iid = np.broadcast_to(np.maximum(n - 1.0, 0.0), var.shape)
+    if film.r1 is None:
+        return var, np.array(dof_iid)
+    nn = np.maximum(n, 2.0)
+    s1, s2 = film.s1.reshape(h, w, 3), film.s2.reshape(h, w, 3)
+    var_iid = np.where(n >= 2, np.maximum(s2 - s1 * s1 / nn, 0.0) / (nn * (nn - 1.0)), 0.0)
+    reps = float(max(int(np.count_nonzero(film.rn)) - 1, 0))
+    use_iid = var_iid > var
+    return np.where(use_iid, var_iid, var), np.where(use_iid, dof_iid, reps)
+
+
+def welch_dof(va: np.ndarray, nua: np.ndarray, vb: np.ndarray, nub: np.ndarray) -> np.ndarray:
+    """Welch-Satterthwaite degrees of freedom of va + vb, two independent variance estimates
+    with nua and nub degrees of freedom (broadcast): (va + vb)^2 / (va^2 / nua + vb^2 / nub);
+    _DOF_INF where both variances are 0."""
+    den = np.where(nua > 0, va * va / np.maximum(nua, 1e-300), np.where(va > 0, np.inf, 0.0)) \
+        + np.where(nub > 0, vb * vb / np.maximum(nub, 1e-300), np.where(vb > 0, np.inf, 0.0))
+    num = (va + vb) ** 2
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), _DOF_INF).clip(1.0, _DOF_INF)
+
+
 def compare_images(a, b, alpha: float = 0.01, block: int = 1, trim: float = 0.05):
     """Two independent renders of the same view (``b`` the reference): per-pixel two-sample
-    Z-tests with both variance images, at a per-channel level Sidak-corrected to ``alpha`` over
+    tests with both variance images, at a per-channel level Sidak-corrected to ``alpha`` over
     all pixel channels (Mitsuba 3's render tests), and a global Z-test of the image means.
 
+    Per pixel channel, t = |a - b| / sqrt(var_a + var_b) is compared with Student's t at the
+    Welch-Satterthwaite degrees of freedom of the two variance estimates
+    (:func:`variance_for_test`: R - 1 for the Sobol sampler's R replicates, n - 1 for n
+    independent samples, where t is the normal Z-test), so a 16-replicate reference is not
+    held to normal thresholds.
+
     block: compare b x b block means instead of pixels (for heavy-tailed estimators whose
-    per-pixel variance estimates are unreliable at test sample counts). trim: the fraction of
-    pixel channels with the largest *reference* variance (light edges, where one sample is 0 or
-    Le) left out of the global test; chosen from the reference alone, so the test stays valid.
-    Returns (fraction of pixel channels passing, largest per-channel global z, pixel threshold).
+    per-pixel variance estimates are unreliable at test sample counts; a block's degrees of
+    freedom by Welch-Satterthwaite over its pixels). trim: the fraction of pixel channels with
+    the largest *reference* variance (light edges, where one sample is 0 or Le) left out of the
+    global test; chosen from the reference alone, so the test stays valid (its sum of variances
+    has hundreds of degrees of freedom or more: normal).
+    Returns (fraction of pixel channels passing, largest per-channel global z, the per-pixel
+    threshold at the smallest degrees of freedom).
     """
     ma, mb = a.mean.astype(np.float64), b.mean.astype(np.float64)
-    va, vb = a.variance.astype(np.float64), b.variance.astype(np.float64)
+    va, nua = variance_for_test(a)
+    vb, nub = variance_for_test(b)
     if block > 1:
+        def block_dof(v, nu):  # Welch-Satterthwaite of a sum of b^2 pixel variances
+            s = _blocks(v, block, False) * block * block
+            d = _blocks(np.where(nu > 0, v * v / np.maximum(nu, 1e-300), 0.0), block, False) * block * block
+            return np.where(d > 0, s * s / np.where(d > 0, d, 1.0), _DOF_INF)
+
+        nua, nub = block_dof(va, nua), block_dof(vb, nub)
         ma, mb, va, vb = _blocks(ma, block, False), _blocks(mb, block, False), _blocks(va, block, True), _blocks(vb, block, True)
     n = ma.size
     alpha_px = 1.0 - (1.0 - alpha) ** (1.0 / n)
-    thr = stats.norm.ppf(1.0 - alpha_px / 2)
+    nu = welch_dof(va, nua, vb, nub)
+    thr_px = stats.t.ppf(1.0 - alpha_px / 2, nu)
+    thr = float(thr_px.max())
     diff = np.abs(ma - mb)
     sd = np.sqrt(va + vb)
     z = np.where(sd > 0, diff / np.maximum(sd, 1e-300), np.where(diff <= 1e-6 * (np.abs(mb) + 1e-12), 0.0, np.inf))
-    frac = float(np.mean(z <= thr))
+    frac = float(np.mean(z <= thr_px))
     gz = 0.0
     for c in range(3):
         vbc = vb[..., c].ravel()

@@ -11,7 +11,8 @@ from test_pathtracer_closed_forms import polygon_irradiance
 from render.bsdf import dielectric_sample
 from render.scene import DiffuseEmitter
 from render.camera import Camera, Intrinsics
-from render.integrators import RenderSettings, render
+from render.accel import offset_eps
+from render.integrators import RenderSettings, prepare, render
 from render.poses import look_at
 from render.scene import Dielectric, Emissive, Lambertian, PointLight, Scene, SceneObject
 
@@ -50,7 +51,13 @@ def test_grazing_secondary_rays_at_millimetre_scale(cornell):
 def test_shading_point_almost_touching_an_area_source(h):
     """A light h above the floor; the floor point h beside its edge sees it at r -> 0.
     Finite and bounded always; Lambert's polygon formula while h exceeds the ray-offset bound
-    (OFFSET_REL * |p| ~ 1e-6 here: below it the gap between surfaces is not resolved)."""
+    (render.accel.offset_eps, 7.8e-7 here: below it the gap between surfaces is not resolved).
+    Rays leave from q raised by that offset, so BSDF-sampled rays see the light as from
+    q + eps n: the render lies between the closed forms at q and there (1% apart at h = 1e-4:
+    the geometry is resolved to eps / h), within 3 standard errors plus 1e-3. Shadow rays are
+    aimed from the raised origin at the light point (path_kernels._queue_shadow_to): aimed
+    along the unraised direction they crossed the light's own plane before their end, and
+    every light sample from q was occluded (the render 1.3% low at h = 1e-4, 0.9% at 1e-3)."""
     sc = _lit_floor(light_height=h)
     q = np.array([0.5 + h, 0.0, 0.0])
     cam = probe_camera(q, q + [1.0, 0.0, 0.3], fov_deg=1e-4)
@@ -60,8 +67,12 @@ def test_shading_point_almost_touching_an_area_source(h):
         return
     corners = np.array([[-0.5, -0.5, h], [0.5, -0.5, h], [0.5, 0.5, h], [-0.5, 0.5, h]])
     expected = RHO * polygon_irradiance(corners, q, np.array([0, 0, 1.0]), LE) / np.pi
+    eps = offset_eps(q[None], prepare(sc).geom.extent)[0]
+    raised = RHO * polygon_irradiance(corners, q + [0.0, 0.0, eps], np.array([0, 0, 1.0]), LE) / np.pi
+    lo, hi = np.minimum(expected, raised), np.maximum(expected, raised)
     m, se = image_mean_and_se(r)
-    assert np.all(np.abs(m - expected) <= 3 * se + 1e-3 * expected), (m, expected, se)
+    slack = 3 * se + 1e-3 * expected
+    assert np.all((m >= lo - slack) & (m <= hi + slack)), (m, expected, raised, se)
 
 
 def test_degenerate_triangles_in_meshes():
