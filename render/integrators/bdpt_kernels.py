@@ -30,10 +30,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .. import embree_direct as _edirect
 from .path_kernels import _albedo, _sample_area, _sample_delta
 
 __all__ = ["BdptConfig", "N_FIELDS", "N_STATE", "start_camera", "start_light", "extend", "prefix_sums", "connect",
-           "queue_bound"]
+           "queue_bound", "trace_batch"]
 
 LAMBERT, MIRROR, DIELECTRIC = 0, 1, 2  # render.bsdf kinds
 POINT, SPOT, DIRECTIONAL = 0, 1, 2  # render.lights kinds
@@ -823,3 +824,59 @@ def connect(ks, cfg, cam, k0, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img
 def queue_bound_jit(max_depth):
     """:func:`queue_bound` inside compiled code."""
     return (max_depth + 2) * (max_depth + 2)
+
+
+# ------------------------------------------------------------------ a whole batch in one call
+if _edirect.AVAILABLE:
+    _intersect_many, _occluded_many = _edirect.intersect_many, _edirect.occluded_many
+
+    @njit(**_JIT)
+    def _walk_direct(ks, cfg, handle, light, m, keys, V, Fl, Iv, img, tgt, cur, nxt, hit):
+        """Extend m subpaths whose first rays are in ``cur`` vertex by vertex, Embree called from
+        here (render.embree_direct): what the Python driver does with Accel.intersect_fast."""
+        prim, tfar, hu, hv = hit
+        rays = 0
+        for i in range(1, cfg.nv_l if light else cfg.nv_e):
+            if m == 0:
+                break
+            _intersect_many(handle, cur[2][:m], cur[3][:m], prim[:m], tfar[:m], hu[:m], hv[:m])
+            rays += m
+            m = extend(ks, cfg, i, light, prim, hu, hv, m, cur[0], cur[1], keys, V, Fl, Iv, img, tgt,
+                       nxt[0], nxt[1], nxt[2], nxt[3])
+            cur, nxt = nxt, cur
+        return rays
+
+    @njit(**_JIT)
+    def trace_batch(ks, cfg, cam, handle, seed_mix, sample0, pix0, npc, keys_e, keys_l, tgt, lkind,
+                    E, EF, EI, L, LF, LI, cur, nxt, hit, queue, occ, img):
+        """One batch of camera samples in a single compiled call (N = len(keys_e), sample k:
+        pass sample0 + k // npc, pixel pix0 + k % npc): both subpaths, the MIS prefix sums,
+        every join and its shadow ray, unoccluded contributions added to img (n_pass H W, 3).
+        handle: the batch's render.embree_direct.DirectScene handle. cur, nxt: walk buffers
+        (idx, st, o32, d32); hit: (prim, tfar, u, v) Embree outputs; queue: the shadow-ray queue
+        (o32, d32, t32, slot, value); occ: (cap,) int32. Returns the rays traced."""
+        N = len(keys_e)
+        start_camera(cfg, cam, seed_mix, sample0, pix0, npc, keys_e, keys_l, tgt, E, EF,
+                     cur[0], cur[1], cur[2], cur[3])
+        rays = _walk_direct(ks, cfg, handle, False, N, keys_e, E, EF, EI, img, tgt, cur, nxt, hit)
+        m = start_light(ks, cfg, keys_l, L, LF, lkind, cur[0], cur[1], cur[2], cur[3])
+        rays += _walk_direct(ks, cfg, handle, True, m, keys_l, L, LF, LI, img, tgt, cur, nxt, hit)
+        prefix_sums(E, EF, cfg.hexp, False, lkind)
+        prefix_sums(L, LF, cfg.hexp, True, lkind)
+        q_o32, q_d32, q_t32, q_idx, q_val = queue
+        k = 0
+        while k < N:
+            k, nq = connect(ks, cfg, cam, k, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img,
+                            q_o32, q_d32, q_t32, q_idx, q_val)
+            if nq > 0:
+                _occluded_many(handle, q_o32[:nq], q_d32[:nq], q_t32[:nq], occ[:nq])
+                rays += nq
+                for r in range(nq):
+                    if occ[r] == -1:
+                        s = q_idx[r]
+                        img[s, 0] += q_val[r, 0]
+                        img[s, 1] += q_val[r, 1]
+                        img[s, 2] += q_val[r, 2]
+        return rays
+else:  # pragma: no cover - the Python driver calls Embree through embreex
+    trace_batch = None

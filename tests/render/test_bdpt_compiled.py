@@ -98,15 +98,22 @@ def test_compiled_equals_numpy_at_the_same_seed(everything, strategies):
     assert np.allclose(c.film.s2.sum(0), n.film.s2.sum(0), rtol=1e-6, atol=0)
 
 
-def test_bytes_across_threads_and_batches(everything):
-    """1 and 2 threads: identical films (batches are summed in batch order). Batches of 37
-    subpaths (several per pass, passes split over pixels) and of whole passes: the same per-pass
-    images, sums equal to 1e-12 relative."""
+def test_bytes_across_threads_and_batches(everything, monkeypatch):
+    """1 and 2 threads: identical films (batches are summed in batch order); the Python driver
+    (Embree through Accel.intersect_fast / occluded_fast, used when Embree's library cannot be
+    called from compiled code) gives the same bytes as the one-call batch (trace_batch). Batches
+    of 37 subpaths (passes split over pixels) and of whole passes: the same per-pass images, sums
+    equal to 1e-12 relative."""
     sc, cam, ps = everything
     one = render_bdpt(sc, cam, 12, max_depth=4, seed=3, prepared=ps, batch_paths=300, threads=1)
     two = render_bdpt(sc, cam, 12, max_depth=4, seed=3, prepared=ps, batch_paths=300, threads=2)
     assert np.array_equal(one.film.s1, two.film.s1) and np.array_equal(one.film.s2, two.film.s2)
     assert np.array_equal(one.mean, two.mean) and np.array_equal(one.variance, two.variance)
+    with monkeypatch.context() as m:
+        m.setattr("render.integrators.bdpt.trace_batch", None)
+        py = render_bdpt(sc, cam, 12, max_depth=4, seed=3, prepared=ps, batch_paths=300, threads=2)
+    assert np.array_equal(py.film.s1, one.film.s1) and np.array_equal(py.film.s2, one.film.s2)
+    assert py.stats["rays"] == one.stats["rays"]
     for batch in (37, 1 << 14):
         other = render_bdpt(sc, cam, 12, max_depth=4, seed=3, prepared=ps, batch_paths=batch, threads=2)
         assert np.allclose(other.film.s1, one.film.s1, rtol=1e-12, atol=0)
