@@ -27,7 +27,11 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   ``volpath`` (what a scene with media would need), and with ``volpath`` given an empty medium
   (media code running for nothing): ratios show what each pruning saves.
 
-Run: ``.venv/bin/python -m bench.bench_hard_paths`` (``--quick`` for a smoke run).
+* samples per second (``samples_per_s``, :func:`samples_per_second`): path against the compiled
+  volpath with and without media, and volpath's numpy reference.
+
+Run: ``.venv/bin/python -m bench.bench_hard_paths`` (``--quick`` for a smoke run;
+``--samples-per-s`` for the samples-per-second section alone).
 """
 from __future__ import annotations
 
@@ -111,7 +115,7 @@ def combined_reference(results) -> tuple[np.ndarray, float]:
 #: spp (sppm: passes) per integrator, chosen so every integrator's wall times overlap path's
 SPP_LISTS = {
     "path": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled: ~100x faster per sample
-    "volpath": ([4, 16], [4, 16, 64, 256]),
+    "volpath": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled too
     "bdpt": ([2, 8], [2, 8, 32, 128]),
     "pssmlt": ([4, 16], [4, 16, 64, 256]),
     "sppm": ([2, 8], [2, 8, 32, 128]),
@@ -209,6 +213,49 @@ def _source_sweep(cam: Camera, quick: bool) -> list[dict]:
     return out
 
 
+def samples_per_second(cam: Camera, quick: bool) -> dict:
+    """Camera samples (paths) per second, measured in one run (median of repeats) so the ratios
+    hold on a loaded machine: ``path`` and compiled ``volpath`` on the caustic scene (no media),
+    compiled ``volpath`` on the fog scene (path cannot render media: its row is the same scene
+    without the fog), and the numpy reference of volpath on both (the compiled kernels' speed-up).
+    Rays per second (every Embree query) too: a fog path has several times more segments.
+    The issue's goal: volpath within 2x of path's samples/s. Load average recorded before and after."""
+    import os
+
+    from render.integrators.volpath import render_volpath
+
+    load0 = os.getloadavg()
+    spp, reps = (8, 3) if quick else (64, 5)
+    k = cam.intrinsics
+    out = {"spp": spp, "size": [k.width, k.height], "repeats": reps}
+    for scene_name, sc in (("caustic", caustic_scene()), ("fog", caustic_scene(0.4))):
+        ps = prepare(sc)
+        numpy_settings = RenderSettings(integrator="volpath", spp=max(spp // 8, 1), max_depth=8, seed=1)
+        runs = {"volpath": lambda: render(sc, cam, RenderSettings(integrator="volpath", spp=spp, max_depth=8, seed=1),
+                                          prepared=ps),
+                "volpath_numpy": lambda: render_volpath(sc, cam, numpy_settings, prepared=ps, numpy_reference=True)}
+        if scene_name == "caustic":
+            runs["path"] = lambda: render(sc, cam, RenderSettings(integrator="path", spp=spp, max_depth=8, seed=1),
+                                          prepared=ps)
+        for name, fn in runs.items():
+            t, _ = median_time(fn, repeats=reps)
+            n = k.width * k.height * (max(spp // 8, 1) if name == "volpath_numpy" else spp)
+            out[f"{scene_name}_{name}_samples_per_s"] = n / t
+            if name != "volpath_numpy":  # Embree queries (surfaces, media boundaries, shadows) per second
+                out[f"{scene_name}_{name}_rays_per_s"] = fn().stats["rays"] / t
+    path_sps = out["caustic_path_samples_per_s"]
+    out["caustic_path_over_volpath"] = path_sps / out["caustic_volpath_samples_per_s"]
+    out["fog_volpath_vs_path_without_fog"] = path_sps / out["fog_volpath_samples_per_s"]
+    out["fog_volpath_rays_per_sample"] = out["fog_volpath_rays_per_s"] / out["fog_volpath_samples_per_s"]
+    out["caustic_path_rays_per_sample"] = out["caustic_path_rays_per_s"] / path_sps
+    out["fog_volpath_rays_per_s_vs_path"] = out["caustic_path_rays_per_s"] / out["fog_volpath_rays_per_s"]
+    for scene_name in ("caustic", "fog"):
+        out[f"{scene_name}_volpath_compiled_over_numpy"] = (out[f"{scene_name}_volpath_samples_per_s"]
+                                                            / out[f"{scene_name}_volpath_numpy_samples_per_s"])
+    out["load_average_before_after"] = [list(load0), list(os.getloadavg())]
+    return out
+
+
 def main(quick: bool = False) -> None:
     size = 24 if quick else 48
     cam = camera(size)
@@ -259,6 +306,7 @@ def main(quick: bool = False) -> None:
     figs["pruning"] = {"path_s": t_path, "volpath_no_media_s": t_vol, "volpath_empty_medium_s": t_empty,
                        "volpath_over_path": t_vol / t_path, "empty_medium_over_no_media": t_empty / t_vol,
                        "spp": st.spp, "size": size}
+    figs["samples_per_s"] = samples_per_second(cam, quick)
     figs["rmse_time"] = rows
     figs["total_s"] = round(time.perf_counter() - t0, 1)
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
@@ -272,4 +320,8 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    if "--samples-per-s" in sys.argv:  # this section alone: bench/results/hard_paths_samples_per_s.json
+        write_result("hard_paths_samples_per_s", samples_per_second(camera(24 if "--quick" in sys.argv else 48),
+                                                                    "--quick" in sys.argv))
+    else:
+        main(quick="--quick" in sys.argv)

@@ -505,9 +505,10 @@ def _raise_majorant(ctx: VolContext, err: np.ndarray) -> None:
 
 
 def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfig, seed: int, mid0: int,
-                    start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray]:
+                    start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
-    + pixel) with the compiled kernels. Returns ((N,) int64 pixels, (N, 3) float64 radiance).
+    + pixel) with the compiled kernels. Returns ((N,) int64 pixels, (N, 3) float64 radiance,
+    rays traced: Embree queries for surfaces, media boundaries and shadows).
 
     Each round: one Embree query for the surfaces, one for the media boundaries (with media),
     :func:`render.integrators.volpath_kernels.vol_bounce`, one occlusion query for the shadow
@@ -543,9 +544,11 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
     err = np.zeros(1, np.int64)
     no_hits = (np.zeros(0, np.int32), np.zeros(0, np.float32))
     m = n
+    nrays = 0
     for _ in range(4 * (cfg.max_depth + 1) + _MAX_CROSSINGS):
         if m == 0:
             break
+        nrays += 2 * m if cfg.has_media else m
         st = tuple(a[:m] for a in cur)
         prim, tfar, hu, hv = accel.intersect_fast(st[5], st[6])
         bhits = maccel.intersect_fast(st[5], st[6])[:2] if cfg.has_media else no_hits
@@ -555,6 +558,7 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
             _raise_majorant(ctx, err)
         if nq:
             occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
+            nrays += nq
             if not cfg.has_media:
                 add_unoccluded(L, q[3][:, 0], q[5], occ)
             else:
@@ -563,13 +567,14 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
                     if ns == 0:
                         break
                     bp, bt = maccel.intersect_fast(walk[0][:ns], walk[1][:ns])[:2]
+                    nrays += ns
                     ns = shadow_media_step(comp.media, ns, bp, bt, *walk, L, err)
                     if err[0]:
                         _raise_majorant(ctx, err)
                 if ns:
                     shadow_flush(ns, walk[3], walk[5], walk[6], L)
         cur, nxt = nxt, cur
-    return pix, L
+    return pix, L, nrays
 
 
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
@@ -602,10 +607,12 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
         return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a)
 
     film = Film(k.width, k.height)
+    rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:
         results = pool.map(work, chunks) if pool is not None else map(work, chunks)
-        for ch, (pix, L) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
+        for ch, (pix, L, nr) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
+            rays += nr
             if not np.all(np.isfinite(L)):
                 raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
             accumulate(film.s1, film.s2, film.n, pix, L)
@@ -614,7 +621,7 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     finally:
         if pool is not None:
             pool.shutdown()
-    stats = {"time_s": time.perf_counter() - t0, "paths": int(total)}
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(total), "rays": int(rays)}
     return RenderResult.from_film(film, (a, b), "volpath", stats)
 
 
