@@ -116,7 +116,7 @@ def combined_reference(results) -> tuple[np.ndarray, float]:
 SPP_LISTS = {
     "path": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled: ~100x faster per sample
     "volpath": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled too
-    "bdpt": ([2, 8], [2, 8, 32, 128]),
+    "bdpt": ([4, 16, 64], [4, 16, 64, 256, 1024, 2048]),  # compiled: about 2x path's cost per sample
     "pssmlt": ([4, 16], [4, 16, 64, 256]),
     "sppm": ([2, 8], [2, 8, 32, 128]),
 }
@@ -150,7 +150,7 @@ SMALL_SOURCE = 0.05
 #: light half-sizes of the source-size sweep (same power at each size)
 SWEEP_HALVES = (0.2, 0.1, 0.05, 0.025)
 #: spp per integrator in the sweep (full, quick): predicted equal-time RMSE from variance x time
-SWEEP_SPP = {"path": (4096, 64), "bdpt": (256, 8), "pssmlt": (128, 8)}
+SWEEP_SPP = {"path": (4096, 64), "bdpt": (2048, 32), "pssmlt": (128, 8)}
 
 
 def _equal_time(rows: list[dict], scene: str) -> tuple[dict, list[dict]]:

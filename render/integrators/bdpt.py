@@ -1,4 +1,11 @@
-"""``bdpt``: bidirectional path tracing (Veach 1997, ch. 10; pbrt-v3's BDPTIntegrator), numpy wavefront.
+"""``bdpt``: bidirectional path tracing (Veach 1997, ch. 10; pbrt-v3's BDPTIntegrator), compiled wavefront.
+
+Two implementations of one estimator: :func:`render_bdpt` (what the integrator name runs) drives
+the numba kernels of :mod:`render.integrators.bdpt_kernels`, a batch of camera samples per call
+with Embree queried from compiled code; :func:`render_bdpt_numpy` is the numpy wavefront it was
+ported from, kept as the tested reference (same random dimensions for the same purposes, so at
+the same seed the two agree to float rounding: tests/render/test_bdpt_compiled.py). The
+description below holds for both; the numpy functions in this module are its readable form.
 
 For every camera sample one *eye subpath* z_0 (the pinhole) z_1 .. z_{t-1} and one *light
 subpath* y_0 (a point on a light) y_1 .. y_{s-1} are traced, then every pair of prefixes is
@@ -62,6 +69,8 @@ pixels (0 below two passes). Random numbers are the counter-based hash of
 :mod:`render.sampling` keyed by (seed, pixel, pass) (light subpaths on a separate key stream),
 so a pass's image does not depend on how passes are batched: renders of disjoint sample
 (= pass) ranges merge exactly (:func:`render.film.merge_results`) and are deterministic.
+Batches are traced by ``threads`` threads (the kernels release the GIL) and summed in batch
+order, so the bytes do not depend on the thread count.
 Secondary and shadow rays start at :func:`render.accel.spawn_origin` offsets.
 """
 from __future__ import annotations
