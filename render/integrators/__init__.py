@@ -8,9 +8,10 @@ registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.
   and glass, light gathered at the first diffuse vertex by NEE and one BSDF sample (MIS).
 * ``path`` (:mod:`.path`, compiled kernels in :mod:`.path_kernels`): L (S|D)* E with NEE + MIS
   at every diffuse vertex and Russian roulette; caustics from area sources by BSDF sampling.
-* ``volpath`` (:mod:`.volpath`, numpy): path plus participating media (delta tracking, NEE
-  through media by ratio tracking) and GGX microfacet surfaces, which the compiled kernels do
-  not shade: ``auto`` picks it when the scene has media or glossy materials, and only then.
+* ``volpath`` (:mod:`.volpath`, compiled kernels in :mod:`.volpath_kernels`; its numpy version
+  kept as the tested reference): path plus participating media (delta tracking, NEE through
+  media by ratio tracking) and GGX microfacet surfaces, which path's kernels do not shade:
+  ``auto`` picks it when the scene has media or glossy materials, and only then.
 * ``bdpt`` (:mod:`.bdpt`, numpy): bidirectional path tracing with every (s, t) strategy,
   MIS-weighted; ``auto`` picks it for caustics from delta lights or small area sources.
 * ``sppm`` (:mod:`.sppm`, numpy): stochastic progressive photon mapping (consistent, not

@@ -1,7 +1,7 @@
-"""``volpath``: a wavefront volumetric path tracer (numpy), with glossy surfaces and media.
+"""``volpath``: a wavefront volumetric path tracer with glossy surfaces and media (compiled; numpy reference).
 
 It estimates the same measurement as :mod:`render.integrators.path` (box-filtered pixel radiance,
-the same camera, light and radiometric conventions) and adds what the compiled kernels lack:
+the same camera, light and radiometric conventions) and adds what path's kernels lack:
 
 * GGX microfacet surfaces (:mod:`render.microfacet`: rough conductors and rough dielectrics),
   with next-event estimation and BSDF sampling combined by MIS (power heuristic);
@@ -11,19 +11,25 @@ the same camera, light and radiometric conventions) and adds what the compiled k
   sampling, MIS), shadow rays attenuated by ratio tracking (exp(-sigma_t d) exactly in
   homogeneous media) across every medium they cross.
 
-Paths are traced wavefront in numpy: each bounce is one Embree query for the surfaces, one for
-the media boundaries (only when the scene has media: media code never runs without media),
-vectorized tracking and shading, one occlusion query for the shadow rays. Vertex bookkeeping
-(throughput, previous-vertex density and delta flag for MIS, the medium a ray travels in)
-lives in the arrays of :func:`trace`, the eye-subpath generator the other integrators share.
+What the integrator name runs (:func:`render_result`) is compiled: numba kernels in
+:mod:`render.integrators.volpath_kernels` shade, track and sample every live path in one pass
+per round (Embree queries for surfaces, media boundaries and shadow rays in between, media
+queries only when the scene has media), over ``threads`` render threads. Its random numbers are
+a pure function of (seed, pixel, sample, dimension), so its bytes do not depend on threads or
+batches and disjoint sample ranges merge exactly (:func:`render.film.merge_results`).
+
+The numpy version (:func:`trace`, :func:`render_result_numpy`; ``render_volpath(...,
+numpy_reference=True)``) is the same estimator, vectorized in numpy, kept as the tested
+reference (tests/render/test_volpath_compiled.py compares the two per pixel). Each of its rounds
+is one Embree query for the surfaces, one for the media boundaries, vectorized tracking and
+shading, one occlusion query for the shadow rays. Vertex bookkeeping (throughput,
+previous-vertex density and delta flag for MIS, the medium a ray travels in) lives in the arrays
+of :func:`trace`. Its random numbers come from a numpy Generator seeded by (seed, sample range,
+batch): deterministic for a given (seed, sample range, batch_paths).
 
 Max depth counts scattering events (surface or medium), as in render.integrators.path; Russian
 roulette from vertex rr_depth. Without 'caustics' among the effects, paths are cut when they
 leave a non-delta vertex along a delta (specular) sample (what render.integrators.path drops).
-
-Random numbers: a numpy Generator seeded by (seed, sample range, batch): renders are
-deterministic for a given (seed, sample range, batch_paths), and renders of disjoint sample
-ranges are independent and merge (:func:`render.film.merge_results`).
 """
 from __future__ import annotations
 
