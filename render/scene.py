@@ -16,9 +16,12 @@ Units and light conventions (the rasterizer and the path tracer must agree on th
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
+
+if TYPE_CHECKING:  # meshes are trimesh.Trimesh, but only their arrays are read here: trimesh (and the
+    import trimesh  # scipy and networkx it pulls in, ~2 s) stays out of the verbs that only render
 
 __all__ = [
     "Lambertian", "Mirror", "Dielectric", "Emissive", "DiffuseEmitter", "RoughConductor", "RoughDielectric",
