@@ -8,8 +8,9 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import trimesh
 
-from ptutil import assert_images_agree, caustic_scene
+from ptutil import assert_images_agree, caustic_scene, quad
 from render.camera import Camera, Intrinsics
 from render.integrators import prepare
 from render.integrators import sppm as sppm_module
@@ -18,16 +19,25 @@ from render.integrators.sppm import _gather, render_sppm, render_sppm_numpy
 from render.integrators.sppm_kernels import build_grid, emit_photons, gather, photon_keys
 from render.lights import sample_emission, scene_bounds
 from render.sampling import uniform
-from render.scene import DirectionalLight, PointLight, Scene, SpotLight
+from render.scene import DirectionalLight, Lambertian, Mirror, PointLight, Scene, SceneObject, SpotLight
 
 
 def _lit_caustic_scene() -> Scene:
-    """The glass caustic (0.4 m area source) plus a point, a spot and a directional light: every
-    kind of emission, glass, and diffuse interreflection."""
+    """The glass caustic (0.4 m area source) plus a point, a spot and a directional light (every
+    kind of emission), a coloured diffuse back wall and a mirror side wall (diffuse
+    interreflection, mirror and glass paths for photons and for the eye)."""
     sc, _ = caustic_scene()
-    return Scene("caustic_lights", list(sc.objects),
+    back = quad((0.0, 0.0, 0.0), 3.0, 1.5)
+    back.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # normal -y
+    back.apply_translation([0.0, 1.5, 1.5])
+    side = quad((0.0, 0.0, 0.0), 1.5, 1.5)
+    side.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))  # normal +x
+    side.apply_translation([-1.5, 0.0, 1.5])
+    walls = [SceneObject("back", back, Lambertian([0.8, 0.5, 0.3])), SceneObject("side", side, Mirror([0.9, 0.9, 0.9]))]
+    return Scene("caustic_lights", list(sc.objects) + walls,
                  lights=[PointLight([0.8, -0.5, 2.0], [3.0, 2.0, 1.0]),
-                         SpotLight([-0.8, 0.3, 2.5], [0.2, -0.1, -1.0], [8.0, 8.0, 8.0], np.radians(20.0), np.radians(30.0)),
+                         SpotLight([-0.8, 0.3, 2.5], [0.2, -0.1, -1.0], [8.0, 8.0, 8.0], np.radians(20.0),
+                                   np.radians(30.0)),
                          DirectionalLight([0.3, 0.2, -1.0], [0.3, 0.4, 0.5])])
 
 
