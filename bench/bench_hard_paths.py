@@ -28,7 +28,9 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   (media code running for nothing): ratios show what each pruning saves.
 
 * samples per second (``samples_per_s``, :func:`samples_per_second`): path against the compiled
-  volpath with and without media, and volpath's numpy reference.
+  volpath with and without media, and volpath's numpy reference; compiled sppm (passes x pixels
+  per second at its default photons per pass, the pixel count), its photons per second at
+  SPPM_PHOTONS per pass, and its numpy reference.
 
 Run: ``.venv/bin/python -m bench.bench_hard_paths`` (``--quick`` for a smoke run;
 ``--samples-per-s`` for the samples-per-second section alone).
@@ -118,7 +120,7 @@ SPP_LISTS = {
     "volpath": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled too
     "bdpt": ([4, 16, 64], [4, 16, 64, 256, 1024, 2048]),  # compiled: about 2x path's cost per sample
     "pssmlt": ([4, 16], [4, 16, 64, 256]),
-    "sppm": ([2, 8], [2, 8, 32, 128]),
+    "sppm": ([2, 8, 32], [2, 8, 32, 128, 512]),  # compiled: passes of SPPM_PHOTONS photons
 }
 CAUSTIC_INTEGRATORS = ["path", "volpath", "bdpt", "pssmlt", "sppm"]
 
@@ -237,6 +239,9 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
         if scene_name == "caustic":
             runs["path"] = lambda: render(sc, cam, RenderSettings(integrator="path", spp=spp, max_depth=8, seed=1),
                                           prepared=ps)
+            # sppm: spp passes of (pixel count) photons each, a sample = one pixel's eye path of a pass
+            runs["sppm"] = lambda: render(sc, cam, RenderSettings(integrator="sppm", spp=spp, max_depth=8, seed=1),
+                                          prepared=ps)
         for name, fn in runs.items():
             t, _ = median_time(fn, repeats=reps)
             n = k.width * k.height * (max(spp // 8, 1) if name == "volpath_numpy" else spp)
@@ -252,7 +257,28 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
     for scene_name in ("caustic", "fog"):
         out[f"{scene_name}_volpath_compiled_over_numpy"] = (out[f"{scene_name}_volpath_samples_per_s"]
                                                             / out[f"{scene_name}_volpath_numpy_samples_per_s"])
+    out["caustic_path_over_sppm"] = path_sps / out["caustic_sppm_samples_per_s"]
+    out.update(_sppm_photons_per_second(cam, spp, reps))
     out["load_average_before_after"] = [list(load0), list(os.getloadavg())]
+    return out
+
+
+def _sppm_photons_per_second(cam: Camera, spp: int, reps: int) -> dict:
+    """sppm on the caustic scene at SPPM_PHOTONS photons per pass: photons per second of the
+    compiled render (spp passes) and of its numpy reference (spp / 8 passes), and their ratio."""
+    from render.integrators.sppm import render_sppm_numpy
+
+    sc = caustic_scene()
+    ps = prepare(sc)
+    n_numpy = max(spp // 8, 1)
+    t, _ = median_time(lambda: render(sc, cam, RenderSettings(integrator="sppm", spp=spp, max_depth=8, seed=1,
+                                                              photons_per_pass=SPPM_PHOTONS), prepared=ps),
+                       repeats=reps)
+    t_numpy, _ = median_time(lambda: render_sppm_numpy(sc, cam, n_numpy, SPPM_PHOTONS, max_depth=8, seed=1,
+                                                       prepared=ps), repeats=max(reps // 2, 1))
+    out = {"caustic_sppm_photons_per_pass": SPPM_PHOTONS, "caustic_sppm_photons_per_s": spp * SPPM_PHOTONS / t,
+           "caustic_sppm_numpy_photons_per_s": n_numpy * SPPM_PHOTONS / t_numpy}
+    out["caustic_sppm_compiled_over_numpy"] = out["caustic_sppm_photons_per_s"] / out["caustic_sppm_numpy_photons_per_s"]
     return out
 
 

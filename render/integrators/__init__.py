@@ -14,8 +14,9 @@ registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.
   ``auto`` picks it when the scene has media or glossy materials, and only then.
 * ``bdpt`` (:mod:`.bdpt`, numpy): bidirectional path tracing with every (s, t) strategy,
   MIS-weighted; ``auto`` picks it for caustics from delta lights or small area sources.
-* ``sppm`` (:mod:`.sppm`, numpy): stochastic progressive photon mapping (consistent, not
-  unbiased); ``spp`` passes in independent groups. Never chosen by ``auto``.
+* ``sppm`` (:mod:`.sppm`, compiled kernels in :mod:`.sppm_kernels`; its numpy version kept as
+  the tested reference): stochastic progressive photon mapping (consistent, not unbiased);
+  ``spp`` passes in independent groups. Never chosen by ``auto``.
 * ``pssmlt`` (:mod:`.pssmlt`, numpy): Metropolis light transport in primary sample space;
   ``spp`` mutations per pixel in independent chain groups. Never chosen by ``auto``.
 * ``irradiance_cache`` (:mod:`.irradiance_cache`, on path's kernels): Ward's irradiance cache

@@ -1,4 +1,10 @@
-"""``sppm``: stochastic progressive photon mapping (Hachisuka and Jensen 2009), numpy wavefront.
+"""``sppm``: stochastic progressive photon mapping (Hachisuka and Jensen 2009), compiled wavefront.
+
+Two implementations of one estimator: :func:`render_sppm` (what the integrator name runs) drives
+the numba kernels of :mod:`render.integrators.sppm_kernels` over Embree hits and gathers on a
+spatial hash grid; :func:`render_sppm_numpy` is the numpy version below (the steps' numpy
+functions, cKDTree gather), kept as the tested reference (tests/render/test_sppm_compiled.py
+compares them per pixel at equal photon counts). The steps, as the numpy version does them:
 
 Caustics (L S+ D E paths) from small or delta sources are where the unidirectional path tracer
 is weak: it must find the source by BSDF-sampling *through* the specular chain. SPPM traces
@@ -21,7 +27,8 @@ them from the light instead. Each pass (pbrt-v3's SPPMIntegrator, whose structur
    Photons carry importance, not radiance: refraction does not scale them by (eta_i/eta_t)^2
    (pbrt's TransportMode::Importance; Veach 1997, section 5.2), so the glass weight of
    :func:`render.bsdf.dielectric_sample` is replaced by 1.
-3. **Gather.** A ``scipy.spatial.cKDTree`` over the stored photons and one over the visible
+3. **Gather.** (The compiled version: a hash grid over the photons, cells of the largest
+   radius, each visible point scanning the <= 8 cells its sphere overlaps.) A ``scipy.spatial.cKDTree`` over the stored photons and one over the visible
    points (grouped into radius classes a factor sqrt(2) apart, so each query's search radius
    is at most sqrt(2) times the points' own) give all (visible point, photon) pairs closer
    than the point's radius in one ``sparse_distance_matrix`` call per class. A pair counts if
@@ -53,9 +60,12 @@ bounces and is counted only if that is <= max_depth (NEE: k + 1, emission seen: 
 
 Shading uses geometric normals; Lambertian and mirror surfaces are two-sided, dielectrics and
 emitters are not, as everywhere in :mod:`render`. GGX materials and participating media are
-not supported (ValueError naming sppm). Random numbers: a numpy Generator per pass seeded by
-(seed, global pass index, stream): a render is a pure function of (scene, camera, passes,
-photons, seed) and of its group split.
+not supported (ValueError naming sppm). Random numbers: compiled, the hash of
+:mod:`render.sampling` keyed by (seed, global pass index, pixel) for eye paths and (seed, pass,
+photon) for photons; numpy, a Generator per pass seeded by (seed, global pass index, stream).
+Either way a render is a pure function of (scene, camera, passes, photons, seed) and of its
+group split (the compiled one's bytes depend on neither threads nor batch sizes), but the two
+draw different numbers.
 Secondary rays start at :func:`render.accel.spawn_origin` offsets (as volpath).
 """
 from __future__ import annotations
