@@ -17,8 +17,8 @@ float64 vertex fields (the ``_P`` .. ``_SUM`` column offsets below: point, geome
 BSDF frame normal, unit wo, throughput, albedo, pdfFwd, pdfRev, conversion factor, MIS cond and
 prefix sum), ``Fl`` (N, nv) uint8 flags (alive, delta, the two caustics-pruning flags) and ``Iv``
 (N, nv, 2) int64 (object, global triangle). Walk state per live ray: ``st`` (M, N_STATE)
-float64 (direction, throughput, direction density, previous vertex point and normal, its
-density mode, roulette reference) with ``idx`` (M,) the sample it extends and float32 rays
+float64 (direction, throughput, direction density, the previous vertex's density mode, roulette
+reference; the previous vertex itself is read from V) with ``idx`` (M,) the sample it extends and float32 rays
 (M, 3) for Embree. Every kernel releases the GIL and visits samples in index order, so the
 bytes do not depend on threads.
 """
@@ -47,9 +47,9 @@ _FWD, _REV, _CONV, _COND, _SUM = 18, 19, 20, 21, 22
 N_FIELDS = 23
 # flags of Fl
 F_ALIVE, F_DELTA, F_HAS, F_CAUS = np.uint8(1), np.uint8(2), np.uint8(4), np.uint8(8)
-# walk state columns of st
-_D, _B, _PDF, _PP, _PN, _MODE, _REF = 0, 3, 6, 7, 10, 13, 14
-N_STATE = 15
+# walk state columns of st (the previous vertex's point and normal are read from V)
+_D, _B, _PDF, _MODE, _REF = 0, 3, 6, 7, 8
+N_STATE = 9
 
 #: random dimensions (render.integrators.bdpt): eye jitter (0, 1), then per vertex i >= 1 from
 #: 2 + 8 (i - 1) lobe, direction (2), roulette, light pick, light point (2); light: pick, point
@@ -267,8 +267,6 @@ def start_camera(cfg, cam, seed_mix, sample0, pix0, npc, keys_e, keys_l, tgt, V,
             dc = rot[c, 0] * x + rot[c, 1] * y + rot[c, 2] * z
             st[k, _D + c] = dc
             st[k, _B + c] = 1.0
-            st[k, _PP + c] = org[c]
-            st[k, _PN + c] = 0.0
             V[k, 0, _P + c] = org[c]
             d32[k, c] = dc
             o32[k, c] = org[c]
@@ -389,8 +387,6 @@ def start_light(ks, cfg, keys_l, V, Fl, lkind, idx, st, o32, d32):
         st[m, _D], st[m, _D + 1], st[m, _D + 2] = dx, dy, dz
         st[m, _B], st[m, _B + 1], st[m, _B + 2] = f0, f1, f2
         st[m, _PDF] = pdf_dir
-        st[m, _PP], st[m, _PP + 1], st[m, _PP + 2] = px, py, pz
-        st[m, _PN], st[m, _PN + 1], st[m, _PN + 2] = nx, ny, nz
         st[m, _MODE] = mode
         st[m, _REF] = flux_max
         o32[m, 0], o32[m, 1], o32[m, 2] = ox, oy, oz
@@ -439,7 +435,7 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
         py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
         pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
         ngx, ngy, ngz = tris[t, 9], tris[t, 10], tris[t, 11]
-        wx, wy, wz = px - st[r, _PP], py - st[r, _PP + 1], pz - st[r, _PP + 2]
+        wx, wy, wz = px - V[k, i - 1, _P], py - V[k, i - 1, _P + 1], pz - V[k, i - 1, _P + 2]
         d2 = max(wx * wx + wy * wy + wz * wz, floor2)
         dng = dx * ngx + dy * ngy + dz * ngz
         cos_in = abs(dng)
@@ -451,7 +447,7 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
         else:
             fwd = pdf * cos_in / d2
             if mode == SURF:
-                conv = abs(st[r, _PN] * dx + st[r, _PN + 1] * dy + st[r, _PN + 2] * dz) / d2
+                conv = abs(V[k, i - 1, _NG] * dx + V[k, i - 1, _NG + 1] * dy + V[k, i - 1, _NG + 2] * dz) / d2
             else:
                 conv = 1.0 / d2
         if kind != DIELECTRIC and dng > 0.0:
@@ -560,8 +556,6 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
         n_st[nn, _D], n_st[nn, _D + 1], n_st[nn, _D + 2] = ox_, oy_, oz_
         n_st[nn, _B], n_st[nn, _B + 1], n_st[nn, _B + 2] = c0, c1, c2
         n_st[nn, _PDF] = 0.0 if delta else spdf
-        n_st[nn, _PP], n_st[nn, _PP + 1], n_st[nn, _PP + 2] = px, py, pz
-        n_st[nn, _PN], n_st[nn, _PN + 1], n_st[nn, _PN + 2] = ngx, ngy, ngz
         n_st[nn, _MODE] = SURF
         n_st[nn, _REF] = st[r, _REF]
         sxo, syo, szo = _spawn(px, py, pz, ngx, ngy, ngz, ox_, oy_, oz_, extent)
