@@ -17,8 +17,9 @@ registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.
 * ``sppm`` (:mod:`.sppm`, compiled kernels in :mod:`.sppm_kernels`; its numpy version kept as
   the tested reference): stochastic progressive photon mapping (consistent, not unbiased);
   ``spp`` passes in independent groups. Never chosen by ``auto``.
-* ``pssmlt`` (:mod:`.pssmlt`, numpy): Metropolis light transport in primary sample space;
-  ``spp`` mutations per pixel in independent chain groups. Never chosen by ``auto``.
+* ``pssmlt`` (:mod:`.pssmlt`, its path sampler compiled in :mod:`.volpath_kernels`): Metropolis
+  light transport in primary sample space; ``spp`` mutations per pixel in independent chain
+  groups. Never chosen by ``auto``.
 * ``irradiance_cache`` (:mod:`.irradiance_cache`, on path's kernels): Ward's irradiance cache
   at the first diffuse vertex, direct light per sample; biased (consistent as its error bound
   goes to 0), ``spp`` samples in independent groups. Never chosen by ``auto``.

@@ -1,4 +1,4 @@
-"""``pssmlt``: Metropolis light transport in primary sample space (Kelemen et al. 2002), numpy.
+"""``pssmlt``: Metropolis light transport in primary sample space (Kelemen et al. 2002), compiled path sampler.
 
 **The path sampler.** :func:`sample_paths` is a unidirectional path tracer written as a
 deterministic function of a point U in the primary sample space [0, 1)^D, D = 2 +
@@ -19,11 +19,13 @@ box-filtered pixel measurement as `path`:
 
     I_p = W H E_U[ f(U) 1{pixel(U) = p} ],   f(U) the path's (3,) RGB radiance contribution.
 
-The sampler is a numpy wavefront (render.integrators.volpath's structure): each bounce is one Embree query
-for all live paths and one occlusion query for their shadow rays; survivors are compacted and
-carry their row index, so column look-ups stay per path. It reuses the prepared scene of
-render.integrators.prepared (BVH, material table, light distribution), render.bsdf's samplers,
-render.lights.LightSet and render.accel.spawn_origin.
+The sampler runs compiled: volpath's kernels (render.integrators.volpath_kernels, through
+render.integrators.volpath.trace_primary) read every random number from U instead of their hash,
+with render.integrators.path's pruning and shadow-ray rules; a wavefront, one Embree query per
+bounce for all rows and one occlusion query for their shadow rays. :func:`sample_paths_numpy` is
+the same function in numpy (render.bsdf's samplers, render.lights.LightSet,
+render.accel.spawn_origin), kept as the tested reference (tests/render/test_pssmlt_compiled.py:
+row by row). The Metropolis chains below stay in numpy, vectorized over a group's chains.
 
 **Metropolis.** The scalar importance is I(U) = luminance (Rec. 709: 0.2126, 0.7152, 0.0722)
 of f(U) >= 0. Its integral b = E_U[I(U)] (the mean image luminance) is estimated by a bootstrap
@@ -110,8 +112,10 @@ from ..film import Film, RenderResult, group_ranges, whole_groups
 from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
+from .volpath import trace_primary
 
-__all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "small_step",
+__all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "sample_paths_numpy",
+           "small_step",
            "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result", "GROUPS"]
 
 #: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2)
@@ -154,13 +158,33 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------- the primary-sample path sampler
 def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
                  heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
-    """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)).
+    """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)),
+    in compiled code (render.integrators.volpath_kernels, every random number read from U:
+    :func:`render.integrators.volpath.trace_primary`).
 
     Returns ((N,) int64 row-major pixel index, (N, 3) float64 radiance contribution f(U)):
     with U uniform, W H f(U) 1{pixel = p} is an unbiased estimate of pixel p's box-filtered
     radiance (render.integrators.path's measurement). heuristic: MIS weights, "power" or "balance".
-    See the module docstring for the column layout and conventions.
+    See the module docstring for the column layout and conventions; :func:`sample_paths_numpy`
+    is the same function in numpy (the tested reference: tests/render/test_pssmlt_compiled.py).
     """
+    U = np.asarray(U, dtype=np.float64)
+    if U.ndim != 2 or U.shape[1] < primary_dims(max_depth):
+        raise ValueError(f"pssmlt: U must be (N, >= {primary_dims(max_depth)}), got {U.shape}")
+    heuristic_exponent(heuristic)
+    k = camera.intrinsics
+    x, y = U[:, 0] * k.width, U[:, 1] * k.height
+    pix = np.minimum(y.astype(np.int64), k.height - 1) * k.width + np.minimum(x.astype(np.int64), k.width - 1)
+    if len(U) == 0:
+        return pix, np.zeros((0, 3))
+    o, d = camera.pixel_rays(np.stack([x, y], axis=1))
+    return pix, trace_primary(ps, o, d, U, max_depth, caustics, heuristic)
+
+
+def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
+                       heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_paths` in numpy (a wavefront: one Embree query per bounce for all rows, one
+    occlusion query for their shadow rays), kept as the tested reference."""
     U = np.asarray(U, dtype=np.float64)
     if U.ndim != 2 or U.shape[1] < primary_dims(max_depth):
         raise ValueError(f"pssmlt: U must be (N, >= {primary_dims(max_depth)}), got {U.shape}")

@@ -56,7 +56,7 @@ from .volpath_kernels import (MediaKernel, VolConfig, media_kernel, shadow_flush
 from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent, parse_sample_range
 
 __all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "render_result_numpy",
-           "surface_eval",
+           "trace_primary", "surface_eval",
            "surface_sample", "shadow_transmittance"]
 
 _MAX_CROSSINGS = 16
@@ -514,21 +514,11 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
                     start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
     + pixel) with the compiled kernels. Returns ((N,) int64 pixels, (N, 3) float64 radiance,
-    rays traced: Embree queries for surfaces, media boundaries and shadows).
-
-    Each round: one Embree query for the surfaces, one for the media boundaries (with media),
-    :func:`render.integrators.volpath_kernels.vol_bounce`, one occlusion query for the shadow
-    rays, then (with media) their walk through the media boundaries, one Embree query per crossing.
-    """
-    ps = ctx.ps
-    ks = kernel_scene_of(ps)
-    accel, maccel = ps.accel, comp.media_accel
+    rays traced: Embree queries for surfaces, media boundaries and shadows)."""
     k = cam.intrinsics
     n = stop - start
     npix = k.width * k.height
-    cur, nxt = _vol_state(n), _vol_state(n)
-    q = _shadow_queue(n)
-    walk = _media_walk(n) if cfg.has_media else None
+    cur = _vol_state(n)
     pix = np.empty(n, np.int64)
     jit = np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
@@ -538,6 +528,30 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
+    L, nrays = _wavefront(ctx, comp, cfg, cur, mid0, _NO_PRIMARY)
+    return pix, L, nrays
+
+
+_NO_PRIMARY = np.zeros((0, 0))
+
+
+def _wavefront(ctx: VolContext, comp: _Compiled, cfg: VolConfig, cur: tuple, mid0, U: np.ndarray
+               ) -> tuple[np.ndarray, int]:
+    """Trace the rays of state ``cur`` (keys and rays o32, d32 filled; the rest set here) to the
+    end. mid0: their medium (int or (N,)). U: primary samples (N, D) read instead of the hash,
+    or (0, 0). Returns ((N, 3) radiance, rays traced).
+
+    Each round: one Embree query for the surfaces, one for the media boundaries (with media),
+    :func:`render.integrators.volpath_kernels.vol_bounce`, one occlusion query for the shadow
+    rays, then (with media) their walk through the media boundaries, one Embree query per crossing.
+    """
+    ps = ctx.ps
+    ks = kernel_scene_of(ps)
+    accel, maccel = ps.accel, comp.media_accel
+    n = len(cur[0])
+    nxt = _vol_state(n)
+    q = _shadow_queue(n)
+    walk = _media_walk(n) if cfg.has_media else None
     cur[0][:, 0] = np.arange(n)
     cur[0][:, 1] = 2  # dimensions 0 and 1: the pixel jitter
     cur[0][:, 2] = 0
@@ -558,7 +572,7 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
         st = tuple(a[:m] for a in cur)
         prim, tfar, hu, hv = accel.intersect_fast(st[5], st[6])
         bhits = maccel.intersect_fast(st[5], st[6])[:2] if cfg.has_media else no_hits
-        m, nq = vol_bounce(ks, comp.alpha, comp.eta, comp.k, comp.media, cfg, prim, tfar, hu, hv, *bhits, *st, L,
+        m, nq = vol_bounce(ks, comp.alpha, comp.eta, comp.k, comp.media, cfg, U, prim, tfar, hu, hv, *bhits, *st, L,
                            *nxt, *q, err)
         if err[0]:
             _raise_majorant(ctx, err)
@@ -580,7 +594,28 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
                 if ns:
                     shadow_flush(ns, walk[3], walk[5], walk[6], L)
         cur, nxt = nxt, cur
-    return pix, L, nrays
+    return L, nrays
+
+
+def trace_primary(ps: PreparedScene, o: np.ndarray, d: np.ndarray, U: np.ndarray, max_depth: int, caustics: bool,
+                  heuristic: str) -> np.ndarray:
+    """Radiance (N, 3) along rays o, d (N, 3) of a scene without media, every random number read
+    from the primary samples U (N, D) float64 in [0, 1) (D >= 2 + 6 max_depth; columns 0, 1 are
+    the caller's, vertex k reads 2 + 6k .. 7 + 6k: light pick, light point (2), lobe, direction
+    (2)): the compiled kernels as render.integrators.pssmlt's path sampler (no roulette, NEE +
+    BSDF sampling MIS-weighted, path's pruning of caustics)."""
+    ctx = VolContext(ps, None)
+    comp = _compiled_of(ctx)
+    n = len(o)
+    cfg = VolConfig(max_depth=int(max_depth), rr_depth=0, roulette=False, caustics=bool(caustics),
+                    strategy=_STRATEGY_CODES["mis"], mis_exponent=heuristic_exponent(heuristic),
+                    has_bg=bool(ps.background.max() > 0), has_media=False, has_lights=not ps.lights.empty,
+                    path_rules=True)
+    cur = _vol_state(n)
+    cur[1][:] = 0
+    cur[5][:], cur[6][:] = o, d
+    L, _ = _wavefront(ctx, comp, cfg, cur, -1, np.ascontiguousarray(U, dtype=np.float64))
+    return L
 
 
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],

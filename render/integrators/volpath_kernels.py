@@ -26,6 +26,10 @@ dimension at queueing), and draws its ratio-tracking dimensions 0, 1, ... from i
 number is a pure function of (seed, pixel, sample, dimension): results do not depend on threads,
 batches or the order of paths in the wavefront.
 
+pssmlt's path sampler runs the same kernels with every number read from a primary sample U
+instead (``vol_bounce``'s U; six dimensions per vertex, no roulette, no media) and path's rules
+(:attr:`VolConfig.path_rules`): render.integrators.volpath.trace_primary.
+
 A majorant below the extinction found at a collision stops the path and records the medium in
 ``err`` (the driver raises :class:`render.media.MajorantError`): never a silently biased image.
 
@@ -75,6 +79,12 @@ class VolConfig(NamedTuple):
     has_bg: bool  #: escaping rays gather a non-black background
     has_media: bool  #: the scene has media (boundary hits are passed)
     has_lights: bool  #: LightSet.empty is False: next-event estimation runs
+    #: render.integrators.path's rules (pssmlt's sampler, scenes without media) instead of
+    #: volpath's: without caustics, drop emission and background reached through a specular chain
+    #: after a diffuse vertex and keep the path (volpath cuts the path at its first specular sample
+    #: after a diffuse vertex); shadow rays end 1e-4 of their length and twice the offset short of
+    #: the light (volpath: 1e-5 and 1e-6 extent); an emitter's distance for MIS is the hit distance
+    path_rules: bool = False
 
 
 class MediaKernel(NamedTuple):
@@ -506,8 +516,17 @@ def _sample_light(cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floo
 
 
 # ------------------------------------------------------------------ one round of the wavefront
+@njit(inline="always", **_JIT)
+def _rand(key, dim, U, row):
+    """Dimension ``dim`` of a path: the hash of (key, dim), or column dim of row ``row`` of the
+    primary samples U when U has rows (pssmlt's sampler: render.integrators.pssmlt)."""
+    if U.shape[0] > 0:
+        return U[row, dim]
+    return _uniform(key, dim)
+
+
 @njit(**_JIT)
-def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfar,
+def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, btfar,
                ints, keys, flt, flags, last_p, o32, d32, L,
                n_ints, n_keys, n_flt, n_flags, n_last_p, n_o32, n_d32,
                q_o32, q_d32, q_t32, q_ints, q_keys, q_val, err):
@@ -515,7 +534,10 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
     escape, or a surface / medium vertex with emission, NEE and the next ray.
 
     ks: path_kernels.KernelScene; m_alpha (M,), m_eta, m_k (M, 3): GGX parameters; md:
-    :class:`MediaKernel`; cfg: :class:`VolConfig`. prim, tfar, hu, hv: Embree surface hits;
+    :class:`MediaKernel`; cfg: :class:`VolConfig`. U: (N0, D) primary samples read instead of
+    the hash (row = the path's slot; shape (0, 0): the hash), without media or roulette: each
+    vertex reads 6 dimensions, light pick, light point (2), lobe, direction (2), as
+    render.integrators.pssmlt's layout. prim, tfar, hu, hv: Embree surface hits;
     bprim, btfar: media-boundary hits (unread without media). L (paths, 3) accumulates in place.
     Survivors go compacted, in order, to n_*; shadow rays to q_* (origin, direction, tmax as
     Embree reads them; q_ints (N, 3) [slot, medium, 0]; q_keys their own RNG keys; q_val the
@@ -539,6 +561,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
         fl = flags[i]
         delta_prev = (fl & F_DELTA) != 0
         after_diff = (fl & F_AFTER_DIFF) != 0
+        pruned = cfg.path_rules and not cfg.caustics and delta_prev and after_diff
         ox, oy, oz = np.float64(o32[i, 0]), np.float64(o32[i, 1]), np.float64(o32[i, 2])
         dx, dy, dz = np.float64(d32[i, 0]), np.float64(d32[i, 1]), np.float64(d32[i, 2])
         lpx, lpy, lpz = last_p[i, 0], last_p[i, 1], last_p[i, 2]
@@ -615,7 +638,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
             nn += 1
             continue
         if not scat and prim[i] < 0:
-            if cfg.has_bg:
+            if cfg.has_bg and not pruned:
                 L[slot, 0] += b0 * bg[0]
                 L[slot, 1] += b1 * bg[1]
                 L[slot, 2] += b2 * bg[2]
@@ -645,14 +668,14 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
             py = tris[tri, 1] + u * tris[tri, 4] + v * tris[tri, 7]
             pz = tris[tri, 2] + u * tris[tri, 5] + v * tris[tri, 8]
             cos_l = -(dx * ngx + dy * ngy + dz * ngz)
-            if emits[obj] and (two_sided[obj] or cos_l > 0.0):
+            if emits[obj] and (two_sided[obj] or cos_l > 0.0) and not pruned:
                 w = 1.0
                 if not delta_prev and cfg.has_lights and cfg.strategy != STRAT_BSDF:
                     if cfg.strategy == STRAT_LIGHT:
                         w = 0.0
                     else:
                         ex, ey, ez = px - lpx, py - lpy, pz - lpz
-                        d2 = ex * ex + ey * ey + ez * ez
+                        d2 = t_s * t_s if cfg.path_rules else ex * ex + ey * ey + ez * ez
                         pl = tri_pdf_area[tri] * d2 / max(abs(cos_l), _COS_FLOOR)
                         w = _mis(pdf_prev, pl, cfg.mis_exponent)
                 L[slot, 0] += b0 * Le[obj, 0] * w
@@ -678,9 +701,8 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
         if cfg.has_lights:
             ok, lx, ly, lz, ldist, L0, L1, L2, lpdf, ldelta = _sample_light(
                 cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, px, py, pz,
-                _uniform(key, dim), _uniform(key, dim + 1), _uniform(key, dim + 2))
+                _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot))
             skey = _mix64(key ^ (np.uint64(dim) * _SHADOW_SALT))
-            dim += 3
             if ok:
                 if scat:
                     ph = hg_pdf_k(g, dx, dy, dz, lx, ly, lz)
@@ -709,7 +731,9 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
                     sx, sy, sz = px + side * ngx, py + side * ngy, pz + side * ngz
                 q_o32[nq, 0], q_o32[nq, 1], q_o32[nq, 2] = sx, sy, sz
                 q_d32[nq, 0], q_d32[nq, 1], q_d32[nq, 2] = lx, ly, lz
-                if ldist < np.inf:
+                if ldist < np.inf and cfg.path_rules:
+                    q_t32[nq] = min(max(ldist * (1.0 - 1e-4) - 2.0 * eps, 0.0), _TMAX_CAP)
+                elif ldist < np.inf:
                     q_t32[nq] = min(max(ldist * (1.0 - 1e-5) - 1e-6 * extent, 0.0), _TMAX_CAP)
                 else:
                     q_t32[nq] = _TMAX_CAP
@@ -720,8 +744,9 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
                 q_val[nq, 1] = b1 * f1 * L1 * s
                 q_val[nq, 2] = b2 * f2 * L2 * s
                 nq += 1
+        dim += 3  # NEE's dimensions, used or not (a fixed layout per vertex)
         # the next ray
-        u0, u1, u2 = _uniform(key, dim), _uniform(key, dim + 1), _uniform(key, dim + 2)
+        u0, u1, u2 = _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot)
         dim += 3
         if scat:
             wx, wy, wz = hg_sample_k(g, dx, dy, dz, u1, u2)
@@ -732,7 +757,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
             ok, lwx, lwy, lwz, w0, w1, w2, pdf_new, delta = surface_sample_local(
                 kind, a0, a1, a2, m_alpha[obj], iors[obj], m_eta[obj, 0], m_eta[obj, 1], m_eta[obj, 2],
                 m_k[obj, 0], m_k[obj, 1], m_k[obj, 2], wox, woy, woz, u0, u1, u2)
-            if not ok or (not cfg.caustics and delta and after_diff):
+            if not ok or (not cfg.caustics and not cfg.path_rules and delta and after_diff):
                 continue
             wx = lwx * s1x + lwy * s2x + lwz * nx
             wy = lwx * s1y + lwy * s2y + lwz * ny
@@ -746,7 +771,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, prim, tfar, hu, hv, bprim, btfa
         bounces += 1
         if cfg.roulette and bounces > cfg.rr_depth:
             q = min(1.0, max(max(b0, b1), b2))
-            u = _uniform(key, dim)
+            u = _rand(key, dim, U, slot)
             dim += 1
             if not u < q:
                 continue
