@@ -220,7 +220,8 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
     hold on a loaded machine: ``path`` and compiled ``volpath`` on the caustic scene (no media),
     compiled ``volpath`` on the fog scene (path cannot render media: its row is the same scene
     without the fog), and the numpy reference of volpath on both (the compiled kernels' speed-up).
-    Rays per second (every Embree query) too: a fog path has several times more segments.
+    Rays per second (every Embree query) too: a fog path has several times more segments. pssmlt
+    (samples: mutations) on the caustic scene, and its path sampler alone, compiled and numpy.
     The issue's goal: volpath within 2x of path's samples/s. Load average recorded before and after."""
     import os
 
@@ -239,6 +240,16 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
         if scene_name == "caustic":
             runs["path"] = lambda: render(sc, cam, RenderSettings(integrator="path", spp=spp, max_depth=8, seed=1),
                                           prepared=ps)
+            runs["pssmlt"] = lambda: render(sc, cam, RenderSettings(integrator="pssmlt", spp=spp, max_depth=8, seed=1),
+                                            prepared=ps)
+            # pssmlt's path sampler alone, on one step of a group's chains and on a bootstrap chunk
+            from render.integrators.pssmlt import GROUP_CHAINS, primary_dims, sample_paths, sample_paths_numpy
+
+            for rows in (GROUP_CHAINS, 1 << 15):
+                U = np.random.default_rng(0).random((rows, primary_dims(8)))
+                for sampler in (sample_paths, sample_paths_numpy):
+                    t, _ = median_time(lambda: sampler(ps, cam, U, 8), repeats=reps)
+                    out[f"pssmlt_{sampler.__name__}_{rows}_rows_per_s"] = rows / t
             # sppm: spp passes of (pixel count) photons each, a sample = one pixel's eye path of a pass
             runs["sppm"] = lambda: render(sc, cam, RenderSettings(integrator="sppm", spp=spp, max_depth=8, seed=1),
                                           prepared=ps)
@@ -246,10 +257,11 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
             t, _ = median_time(fn, repeats=reps)
             n = k.width * k.height * (max(spp // 8, 1) if name == "volpath_numpy" else spp)
             out[f"{scene_name}_{name}_samples_per_s"] = n / t
-            if name != "volpath_numpy":  # Embree queries (surfaces, media boundaries, shadows) per second
+            if name not in ("volpath_numpy", "pssmlt"):  # Embree queries per second (pssmlt counts none)
                 out[f"{scene_name}_{name}_rays_per_s"] = fn().stats["rays"] / t
     path_sps = out["caustic_path_samples_per_s"]
     out["caustic_path_over_volpath"] = path_sps / out["caustic_volpath_samples_per_s"]
+    out["caustic_path_over_pssmlt"] = path_sps / out["caustic_pssmlt_samples_per_s"]
     out["fog_volpath_vs_path_without_fog"] = path_sps / out["fog_volpath_samples_per_s"]
     out["fog_volpath_rays_per_sample"] = out["fog_volpath_rays_per_s"] / out["fog_volpath_samples_per_s"]
     out["caustic_path_rays_per_sample"] = out["caustic_path_rays_per_s"] / path_sps
