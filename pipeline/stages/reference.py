@@ -18,7 +18,7 @@ film moments are summed by a left fold in sample order (as render.film.merge_res
 the result does not depend on where or in how many processes the units ran: byte-identical
 outputs in process and on a Dask cluster of any size (pipeline.distributed). The progress bar
 moves per unit. Stats are folded by render.film.merge_stats (integrators report different
-counters: volpath and pssmlt count no rays, so ``rays_per_s`` is null for them).
+counters: pssmlt counts no rays, so ``rays_per_s`` is null for it).
 
 What cannot fit is refused before anything is allocated (BadInput, exit 2): --spp above
 MAX_SPP, and a view whose film needs more than the available memory (BYTES_PER_PIXEL per pixel
@@ -265,7 +265,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         for name in sorted(totals):  # view order never changes the sums' bytes
             stats = merge_stats(stats, totals[name])
         seconds = stats.get("time_s", 0.0)
-        counted_rays = all("rays" in st for st in totals.values())  # volpath and pssmlt count none
+        counted_rays = all("rays" in st for st in totals.values())  # pssmlt counts none
         write_cameras_json(tmp / "cameras.json", [c for _, c in chosen], [s for s, _ in chosen])
         manifest.metrics = {"views": len(chosen), "paths_per_s": stats.get("paths", 0) / max(seconds, 1e-9),
                             "rays_per_s": stats["rays"] / max(seconds, 1e-9) if counted_rays else None,
