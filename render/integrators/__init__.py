@@ -12,8 +12,9 @@ registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.
   kept as the tested reference): path plus participating media (delta tracking, NEE through
   media by ratio tracking) and GGX microfacet surfaces, which path's kernels do not shade:
   ``auto`` picks it when the scene has media or glossy materials, and only then.
-* ``bdpt`` (:mod:`.bdpt`, numpy): bidirectional path tracing with every (s, t) strategy,
-  MIS-weighted; ``auto`` picks it for caustics from delta lights or small area sources.
+* ``bdpt`` (:mod:`.bdpt`, compiled kernels in :mod:`.bdpt_kernels`; its numpy version kept as
+  the tested reference): bidirectional path tracing with every (s, t) strategy, MIS-weighted;
+  ``auto`` picks it for caustics from delta lights or small area sources.
 * ``sppm`` (:mod:`.sppm`, compiled kernels in :mod:`.sppm_kernels`; its numpy version kept as
   the tested reference): stochastic progressive photon mapping (consistent, not unbiased);
   ``spp`` passes in independent groups. Never chosen by ``auto``.

@@ -13,10 +13,12 @@ texture lookup) and a background (escapes).
 * bytes: 1 and 2 threads give identical films; batch sizes and pixel splits change only the
   summation order (1e-12 relative).
 
-Breaks each test was run against (restored afterwards): the light-subpath MIS sum raised to the
-4th power in ``connect`` (t = 1 only) fails the same-seed test (largest relative difference 0.53)
-and the independent-seed test (global z 9.9); not clearing a reused workspace's flags between
-batches (``_render_chunk_compiled``) fails the bytes test (batch sizes: relative difference 0.9).
+Breaks each test was run against (restored afterwards): next-event estimation (s = 1) left
+unweighted in ``connect`` fails the independent-seed test (94.7% of channels pass); the
+light-tracing (t = 1) MIS ratios squared (the 4th power) fails the same-seed test (39% of
+channels within 1e-5, largest relative difference 0.079) but not the independent-seed one at
+384 passes, which is why both exist; not clearing a reused workspace's flags between batches
+(``_render_chunk_compiled``) fails all four (the bytes test: films differ across threads).
 """
 from __future__ import annotations
 
