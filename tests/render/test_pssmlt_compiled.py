@@ -40,7 +40,9 @@ def test_compiled_sampler_equals_numpy_row_by_row(scene_name, caustics):
     """20000 uniform primary samples (seed 51), max depth 6: the same pixels; >= 99.9% of rows
     within 1e-3 relative (measured: Cornell box 99.985%, rounding of float32 directions at a few
     grazing vertices; the glass scene 100% within 1e-5, with and without caustics); the sums of
-    the contributions (the image mean) within 1e-6 relative (measured 4e-8)."""
+    the contributions (the image mean) within 1e-6 relative (measured 4e-8). Emission pruned
+    after any specular vertex without caustics (the diffuse vertex behind it ignored) fails the
+    glass scene's case (65% of rows agree)."""
     if scene_name == "cornell":
         sc, cam = cornell_scene(), cornell_camera(16, 16)
     else:
