@@ -47,7 +47,8 @@ independent of the model, E[(model - ref)^2] = (model - truth)^2 + var_ref, so p
   space, the noise's display MSE by the delta method (:func:`render.metrics.display_noise_mse`:
   mean of the sRGB curve's slope^2 x var_ref) and the truth estimate from the display MSE minus it;
 * ``z_within_fraction``: the fraction of pixel channels with z = |model - ref| / sigma_ref at most
-  z_crit = Phi^-1(1 - alpha / 2) (two-sided, per-pixel alpha, sigma_ref = sqrt(var_ref) clamped
+  z_crit = Phi^-1(1 - alpha / 2), or Student's t quantile with R - 1 degrees of freedom against a
+  Sobol reference of R replicates (its manifest's ``replicates``) (two-sided, per-pixel alpha, sigma_ref = sqrt(var_ref) clamped
   below at ``sigma_floor``; the Z-test of REFERENCES.md). A model equal to the truth scores about
   1 - alpha.
 
@@ -70,6 +71,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from render.image_io import write_png
 from render.image_io import read_png
@@ -165,19 +167,31 @@ def z_scores(render: np.ndarray, ref: np.ndarray, var: np.ndarray, sigma_floor: 
     return np.abs(render.astype(np.float64) - ref) / sigma
 
 
+def z_critical(alpha: float, var_dof: float | None = None) -> float:
+    """The per-pixel two-sided threshold of z_within_fraction: Phi^-1(1 - alpha / 2), or Student's
+    t quantile with ``var_dof`` degrees of freedom when the reference's variance image is an
+    estimate with that many (the Sobol sampler's R replicates: R - 1, the reference manifest's
+    ``replicates``), so that a model equal to the truth still scores about 1 - alpha (with R = 16
+    and normal thresholds it scored 0.979 at alpha 0.01)."""
+    if var_dof is None:
+        return float(norm.ppf(1.0 - alpha / 2.0))
+    return float(student_t.ppf(1.0 - alpha / 2.0, var_dof))
+
+
 def compare_view(render: np.ndarray, ref: np.ndarray, var: np.ndarray, config: ValidateConfig = ValidateConfig(),
-                 mask: np.ndarray | None = None, maps: dict | None = None) -> dict:
+                 mask: np.ndarray | None = None, maps: dict | None = None, var_dof: float | None = None) -> dict:
     """Scores of one (H, W, 3) float32 linear render against the reference mean and its variance
     (module docstring): the field's figures of :func:`render.metrics.score_images` (display_psnr,
     display_ssim, flip_ldr, flip_hdr, linear_psnr; ``_subject`` variants on the (H, W) ``mask``'s
     pixels when given and not empty, else null), and the noise accounting: rmse, mse, noise_mse,
     noise_share, psnr_noise_ceiling, psnr_truth_est, within_noise, z_within_fraction (linear), and
     display_psnr_noise_ceiling / display_psnr_truth_est (display, delta method). ``maps`` receives
-    the ꟻLIP error maps. Finite numbers or null, never NaN/Inf."""
+    the ꟻLIP error maps. Finite numbers or null, never NaN/Inf. var_dof: degrees of freedom of
+    var (:func:`z_critical`)."""
     d = render.astype(np.float64) - ref
     mse = float(np.mean(d * d))
     noise = float(np.mean(np.maximum(var, 0.0), dtype=np.float64))
-    z_crit = float(norm.ppf(1.0 - config.alpha / 2.0))
+    z_crit = z_critical(config.alpha, var_dof)
     z = z_scores(render, ref, var, config.sigma_floor)
     excess = mse - noise
     subject = mask if mask is not None and np.any(mask) else None
@@ -389,7 +403,10 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                 raise BadInput(f"{m.folder / 'renders' / (v + '.exr')}: missing held-out view {v!r} of model {m.name!r}")
     capture_s = _wall(artifacts_dir / "capture") or 0.0
     manifest = Manifest("validate", params={**asdict(config), "views": views, "models": [m.name for m in models]})
-    z_crit = float(norm.ppf(1.0 - config.alpha / 2.0))
+    replicates = ref_manifest.get("params", {}).get("replicates")
+    # the Sobol sampler's replicate variance (a manifest without a sensible count: normal thresholds)
+    var_dof = float(replicates - 1) if isinstance(replicates, int) and replicates >= 2 else None
+    z_crit = z_critical(config.alpha, var_dof)
     refs = {}
     for v in views:
         ref = read_image(ref_dir / "linear" / f"{v}.exr")
@@ -435,7 +452,7 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                 mask = subject_mask(capture_dir, v, img.shape) if masks[v] is not None else None
                 manifest.add_input(path)
                 maps: dict = {}
-                per_view[v] = {**compare_view(img, ref, var, config, mask, maps), "scale": k}
+                per_view[v] = {**compare_view(img, ref, var, config, mask, maps, var_dof), "scale": k}
                 sub = model_subfolder(m.name)
                 write_png(tmp / "errors" / sub / f"{v}.png", error_image(img, ref, config.error_gain))
                 write_png(tmp / "zmaps" / sub / f"{v}.png", zmap_png(z_scores(img, ref, var, config.sigma_floor), z_crit))
