@@ -640,25 +640,41 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     _check_arguments(passes, photons_per_pass, max_depth, first_pass, alpha, initial_radius)
     ps = prepared if prepared is not None else prepare(scene)
     _check_supported(scene, ps.mats)
+    (state, history), rays = _render_groups(ps, camera, [(first_pass, first_pass + passes)], photons_per_pass,
+                                            initial_radius, max_depth, seed, alpha, caustics, callback, threads)[0]
+    k = camera.intrinsics
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(passes * (k.width * k.height + photons_per_pass)),
+             "rays": int(rays)}
+    return state.result(passes, photons_per_pass, k.height, k.width, history, stats)
+
+
+def _render_groups(ps, camera: Camera, groups: list, photons_per_pass: int, initial_radius, max_depth: int, seed: int,
+                   alpha: float, caustics: bool, callback, threads) -> list:
+    """Independent progressive runs over consecutive ranges of global passes ``groups`` [(a, b),
+    ...] (b of one = a of the next), traced together: blocks of passes span group boundaries,
+    each pass's gather updates its own group's state. Returns [((_Progressive, history), rays)
+    per group], rays traced by its passes' blocks shared in proportion to its passes. Each
+    group's result is that of render_sppm over its passes alone (the same bytes)."""
     ks = kernel_scene_of(ps)
     k = camera.intrinsics
     h, w = k.height, k.width
     npix = h * w
     extent = ps.geom.extent
-    state = _Progressive(npix, 1e-9 * extent, alpha)
+    first, last = groups[0][0], groups[-1][1]
+    starts = np.array([a for a, _ in groups])
+    states = [_Progressive(npix, 1e-9 * extent, alpha) for _ in groups]
+    histories = [[] for _ in groups]
     pinhole = pinhole_of(camera)
     bounds = scene_bounds(ps.geom)
     seed_mix = _mix64(np.array([np.uint64(int(seed) & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     nthreads = ps.accel.threads if threads is None else max(1, int(threads))
     pool = ThreadPoolExecutor(nthreads) if nthreads > 1 else None
     block = 1 if callback is not None else max(1, _BLOCK_RAYS // (npix + photons_per_pass))
-    history = []
     rays = 0
     try:
-        for b0 in range(0, passes, block):
+        for pass0 in range(first, last, block):
             tb = time.perf_counter()
-            nb = min(block, passes - b0)
-            pass0 = first_pass + b0
+            nb = min(block, last - pass0)
             out = _BlockBuffers(nb * npix)
             n_eye, n_ph = nb * npix, nb * photons_per_pass
             jobs = ([("eye", a, min(a + _BATCH, n_eye)) for a in range(0, n_eye, _BATCH)]
@@ -685,27 +701,29 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
             dt = (time.perf_counter() - tb) / nb
             for j in range(nb):
                 tp = time.perf_counter()
+                gp = pass0 + j
+                g = int(np.searchsorted(starts, gp, side="right")) - 1
+                state, done = states[g], gp - groups[g][0] + 1
                 r0, r1 = j * npix, (j + 1) * npix
                 c0, c1 = cuts[j], cuts[j + 1]
                 state.add_direct(out.direct[r0:r1])
                 ok = out.ok[r0:r1]
-                if b0 + j == 0:
+                if done == 1:
                     state.start(out.footprint[r0:r1][ok], initial_radius, extent)
                 gathered = gather_update(ok, out.p[r0:r1], out.n[r0:r1], out.w[r0:r1], out.depth[r0:r1],
                                          p[c0:c1], wi[c0:c1], flux[c0:c1], depth[c0:c1], max_depth, alpha,
                                          state.r_floor, state.R, state.N, state.tau)
-                history.append({"pass": b0 + j + 1, "mean_radius": float(state.R.mean()),
-                                "min_radius": float(state.R.min()), "visible_points": int(ok.sum()),
-                                "stored_photons": int(c1 - c0), "gathered": int(gathered),
-                                "time_s": dt + time.perf_counter() - tp})
+                histories[g].append({"pass": done, "mean_radius": float(state.R.mean()),
+                                     "min_radius": float(state.R.min()), "visible_points": int(ok.sum()),
+                                     "stored_photons": int(c1 - c0), "gathered": int(gathered),
+                                     "time_s": dt + time.perf_counter() - tp})
                 if callback is not None:
-                    callback(b0 + j + 1, state.estimate(b0 + j + 1, photons_per_pass).reshape(h, w, 3),
-                             state.R.reshape(h, w).copy())
+                    callback(done, state.estimate(done, photons_per_pass).reshape(h, w, 3), state.R.reshape(h, w).copy())
     finally:
         if pool is not None:
             pool.shutdown()
-    stats = {"time_s": time.perf_counter() - t0, "paths": int(passes * (npix + photons_per_pass)), "rays": int(rays)}
-    return state.result(passes, photons_per_pass, h, w, history, stats)
+    total = last - first
+    return [((st, hist), rays * (b - a) / total) for st, hist, (a, b) in zip(states, histories, groups)]
 
 
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
@@ -727,14 +745,21 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     film = Film(k.width, k.height)
     photons = int(options.photons_per_pass or k.width * k.height)
     stats = {"time_s": 0.0, "paths": 0, "rays": 0, "groups": 0, "photons": 0}
-    for g0, g1 in groups:
-        res = render_sppm(scene, camera, g1 - g0, photons, max_depth=settings.max_depth,
-                          seed=settings.seed, prepared=prepared, caustics="caustics" in effects, first_pass=g0,
-                          threads=settings.threads)
-        image = res.mean.reshape(-1, 3)
-        film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
-        for key in ("time_s", "paths", "rays"):
-            stats[key] += res.stats[key]
-        stats["groups"] += 1
-        stats["photons"] += (g1 - g0) * photons
+    t0 = time.perf_counter()
+    if groups:
+        ps = prepared if prepared is not None else prepare(scene)
+        _check_supported(scene, ps.mats)
+        runs = _render_groups(ps, camera, groups, photons, None, int(settings.max_depth), settings.seed, ALPHA,
+                              "caustics" in effects, None, settings.threads)
+        for (g0, g1), ((state, _), rays) in zip(groups, runs):
+            image = state.estimate(g1 - g0, photons)
+            if not np.all(np.isfinite(image)):
+                raise FloatingPointError("sppm produced a non-finite radiance (a bug: please report)")
+            film.add_moments(image, image * image, np.ones(k.width * k.height, np.int64))
+            stats["rays"] += rays
+            stats["groups"] += 1
+            stats["photons"] += (g1 - g0) * photons
+            stats["paths"] += (g1 - g0) * (k.width * k.height + photons)
+        stats["rays"] = int(round(stats["rays"]))
+    stats["time_s"] = time.perf_counter() - t0
     return RenderResult.from_film(film, (a, b), "sppm", stats)
