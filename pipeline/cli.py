@@ -143,7 +143,11 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          mode: str = typer.Option("depth", help="nearest | uv | st | quadrilinear | depth"),
          layout: str = typer.Option("ring", help="ring (slabs around the turntable axis) | box (six faces)"),
          uv_res: int = typer.Option(LayoutConfig.uv_res, help="uv samples along a uv quad's longer side"),
-         st_res: int = typer.Option(LayoutConfig.st_res, help="st samples along an st quad's longer side"),
+         st_res: Optional[int] = typer.Option(LayoutConfig.st_res, help="st samples along an st quad's longer side "
+                                              "(default: from the capture's pixel footprint, --st-per-pixel)"),
+         st_per_pixel: float = typer.Option(LayoutConfig.st_per_pixel,
+                                            help="st samples per capture pixel of the subject's footprint on the st plane"),
+         precision: str = typer.Option("half", help="slab samples: half (float16) | single (float32)"),
          compress: bool = typer.Option(True, "--compress/--no-compress",
                                        help="also vector-quantize the slabs and score the views from them"),
          reference: Optional[Path] = typer.Option(None, help="reference folder to score against"),
@@ -157,8 +161,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     from .stages.slab import SlabStageConfig, run_slab
 
     try:
-        cfg = SlabStageConfig(method=method, mode=mode, compress=compress,
-                              layout=LayoutConfig(kind=layout, uv_res=uv_res, st_res=st_res))
+        cfg = SlabStageConfig(method=method, mode=mode, compress=compress, precision=precision,
+                              layout=LayoutConfig(kind=layout, uv_res=uv_res, st_res=st_res, st_per_pixel=st_per_pixel))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "slab"

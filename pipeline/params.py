@@ -1,7 +1,7 @@
 """The defaults of ``lumigraph run``, stated once: the CLI's ``run`` options and
 :func:`pipeline.pipeline_run.run_pipeline` take them from :class:`RunParams`, and ``params.yaml``
 (what ``dvc repro`` runs with) holds the same values (``RunParams().as_params_yaml()``; a test
-checks they agree). The slab's resolution is :class:`recon.slab.LayoutConfig`'s own default.
+checks they agree). The slab's sampling is :class:`recon.slab.LayoutConfig`'s own default.
 """
 from __future__ import annotations
 
@@ -19,9 +19,11 @@ class RunParams:
     (the default scene is direct-only under delta lights: little noise per sample); poses_method:
     the estimate DVC's slab and validate stages read (``run`` tries gt, colmap and charuco);
     poses_image_scale: COLMAP's feature extraction scale (0.5: 0.08 deg mean rotation error in
-    about a quarter of full resolution's time); slab_uv_res, slab_st_res: samples along a slab
-    quad's longer side (memory goes to st: 28.1 dB at uv 8 x st 384 against 24.1 at uv 16 x st
-    192, same bytes); nerf_model: NeRF model name; nerf_minutes: its wall-clock budget (0 skips it)."""
+    about a quarter of full resolution's time); slab_uv_res: uv samples along a slab's uv quad's
+    longer side; slab_st_per_pixel: st samples per capture pixel of the subject's footprint on the
+    st plane (memory goes to st: with depth correction the held-out views follow the st sampling,
+    hardly the uv; :class:`recon.slab.LayoutConfig`); nerf_model: NeRF model name; nerf_minutes:
+    its wall-clock budget (0 skips it)."""
 
     scene: str = "turntable"
     seed: int = 0
@@ -29,7 +31,7 @@ class RunParams:
     poses_method: str = "colmap"
     poses_image_scale: float = 0.5
     slab_uv_res: int = LayoutConfig.uv_res
-    slab_st_res: int = LayoutConfig.st_res
+    slab_st_per_pixel: float = LayoutConfig.st_per_pixel
     nerf_model: str = "fast"
     nerf_minutes: float = 4.0
 
@@ -37,5 +39,5 @@ class RunParams:
         """The nested mapping ``params.yaml`` holds (the keys ``dvc.yaml`` interpolates)."""
         return {"scene": self.scene, "seed": self.seed, "reference": {"spp": self.reference_spp},
                 "poses": {"method": self.poses_method, "image_scale": self.poses_image_scale},
-                "slab": {"uv_res": self.slab_uv_res, "st_res": self.slab_st_res},
+                "slab": {"uv_res": self.slab_uv_res, "st_per_pixel": self.slab_st_per_pixel},
                 "nerf": {"model": self.nerf_model, "minutes": self.nerf_minutes}}

@@ -12,28 +12,17 @@ from .distributed import ClusterConfig, engine
 from .inspect import inspect_folder
 from .params import RunParams
 
-__all__ = ["run_pipeline", "slab_layout_for", "ST_SAMPLES_PER_CAPTURE_PIXEL"]
-
-#: width (pixels) of the default scene's captures, on which the slab study chose the default st
-#: resolution (docs/architecture.md, light slab defaults)
-STUDY_CAPTURE_WIDTH = 1280
-#: slab st samples per capture pixel across (0.3 at st 384 on 1280-wide captures); smaller captures
-#: get proportionally fewer (never more than the params' st_res), so the slab stage's work follows
-#: the scene's resolution instead of the demo's
-ST_SAMPLES_PER_CAPTURE_PIXEL = RunParams.slab_st_res / STUDY_CAPTURE_WIDTH
+__all__ = ["run_pipeline", "slab_layout_for"]
 
 
-def slab_layout_for(rig: RigScene, params: RunParams = RunParams()):
+def slab_layout_for(params: RunParams = RunParams()):
     """The slab layout ``lumigraph run`` uses: LayoutConfig's other defaults, uv_res =
-    params.slab_uv_res and st_res = min(params.slab_st_res, ceil(ST_SAMPLES_PER_CAPTURE_PIXEL x the
-    widest train/test view)), at least 8 (the default 1280-wide turntable keeps st 384)."""
-    import math
-
+    params.slab_uv_res and st sampled at params.slab_st_per_pixel samples per capture pixel of
+    the subject's footprint (:func:`recon.slab.st_density`: a tiny scene's small views get a
+    small slab, the demo's 1280x960 views one that keeps the board's markers)."""
     from recon.slab import LayoutConfig
 
-    widest = max((c.intrinsics.width for s in ("train", "test") for c in rig.cameras.get(s, [])), default=0)
-    st = min(params.slab_st_res, max(8, math.ceil(ST_SAMPLES_PER_CAPTURE_PIXEL * widest)))
-    return LayoutConfig(uv_res=params.slab_uv_res, st_res=st)
+    return LayoutConfig(uv_res=params.slab_uv_res, st_per_pixel=params.slab_st_per_pixel)
 
 
 def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams = RunParams(),
@@ -103,7 +92,7 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
             return (f"{label:10s} {m['metrics']['mode']}: display PSNR {m['metrics']['display_psnr_mean']:.2f} dB, "
                     f"SSIM {m['metrics']['display_ssim_mean']:.4f}, {m['wall_time_s']:.1f} s")
 
-        layout = slab_layout_for(rig, params)
+        layout = slab_layout_for(params)
         m = run_slab(cap, None, stage_dir(name, "slab", root), SlabStageConfig(layout=layout), reference_dir=ref,
                      quiet=quiet, cluster=eng, overwrite=overwrite)
         lines.append(slab_line("slab", m))

@@ -2,7 +2,8 @@
 
 Layout (DESIGN.md)::
 
-    slab/slabs/slabs.json, <name>.radiance.npy, <name>.depth.npy   the slab set (render.lightfield.storage)
+    slab/slabs/slabs.json, <name>.radiance.npy, <name>.depth.npy   the slab set (render.lightfield.storage;
+                                           float16 samples by default: ``precision``)
     slab/renders/<view>.exr, <view>.png    held-out views in the primary mode (capture's names)
     slab/errors/<view>.png, <view>.exr     |render - reference| (PNG: mean over RGB, x8, grey)
     slab/modes/<mode>/<view>.png           previews of every interpolation mode (Fig. 13)
@@ -14,7 +15,9 @@ Layout (DESIGN.md)::
     slab/manifest.json
 
 Split between layers: this stage reads the capture (images, depth, cameras: the layout is
-pipeline's), chooses the slab layout (:func:`recon.slab.slab_layout`), and acquires the slabs
+pipeline's), chooses the slab layout (:func:`recon.slab.slab_layout`: st sampled at the train
+cameras' pixel footprint unless the layout fixes ``st_res``), refuses a slab set that cannot fit
+the machine before allocating anything (:func:`check_slab_fits`), and acquires the slabs
 either ``direct`` (sheared-perspective renders by the rig's rasterizer, or its path tracer when
 the scene's effects require it, handed to :func:`recon.slab.acquire_direct` as a callback: recon
 never imports rig) or by ``rebin`` (:func:`recon.slab.rebin_slabs` from the captured train views
@@ -35,6 +38,8 @@ any size. Rebinning runs in this process.
 """
 from __future__ import annotations
 
+import resource
+import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -42,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.slab import (SourceView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
-                        compress_slabs, content_bounds, rebin_slabs, renders_per_uv, slab_layout)
+                        compress_slabs, content_bounds, layout_rays, rebin_slabs, renders_per_uv, slab_layout)
 from render.camera import Camera
 from render.image_io import write_exr, write_png, write_preview
 from render.metrics import psnr, ssim, to_display
@@ -55,11 +60,13 @@ from ..progress import progress_bar
 from ..renderers import prepared_scene, raster_pool
 
 __all__ = ["SlabStageConfig", "run_slab", "load_views", "build_slabs", "score_slab_views", "score_slab_view", "slab_row",
-           "find_reference", "held_out_references"]
+           "find_reference", "held_out_references", "check_slab_fits", "slab_set_bytes", "PRECISIONS"]
 
 Cluster = ClusterConfig | LocalEngine | DaskEngine | None
 
 METHODS = ("direct", "rebin")
+#: sample precision of the slab arrays: bytes per value
+PRECISIONS = {"half": np.float16, "single": np.float32}
 #: multiplier of the error PNGs (errors/<view>.png), as the validate stage's default
 ERROR_GAIN = 8.0
 
@@ -69,7 +76,9 @@ class SlabStageConfig:
     """method: ``direct`` or ``rebin``; mode: interpolation of ``renders/``; min_radiance: capture
     pixels brighter than this (max over RGB, linear) bound the content the slabs must cover
     (darker surfaces such as black velvet are left to the background); seed: path tracer seed;
-    compress: also vector-quantize the slabs (``vq``) and score the held-out views from them."""
+    compress: also vector-quantize the slabs (``vq``) and score the held-out views from them;
+    precision: ``half`` (float16 radiance and depth, the default: half the memory, a relative
+    rounding of 2^-11, below an 8-bit display step) or ``single`` (float32)."""
 
     method: str = "direct"
     mode: str = "depth"
@@ -81,12 +90,15 @@ class SlabStageConfig:
     seed: int = 0
     compress: bool = True
     vq: VQConfig = field(default_factory=VQConfig)
+    precision: str = "half"
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"slab method must be one of {list(METHODS)}, got {self.method!r}")
         if self.mode not in MODES:
             raise ValueError(f"interpolation mode must be one of {list(MODES)}, got {self.mode!r}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"slab precision must be one of {list(PRECISIONS)}, got {self.precision!r}")
 
 
 # ------------------------------------------------------------------------------------- inputs
@@ -221,6 +233,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
         renderer = plan_capture(rig).renderer
         up = np.asarray(rig.scene.up, dtype=np.float64)
         geoms = _layout(config, bounds, train, up)
+        info["fit"] = check_slab_fits(geoms, config, folder)
         per_uv = renders_per_uv(config.direct)
         total = sum(g.shape[0] * g.shape[1] for g in geoms) * per_uv
         with engine(cluster, quiet) as eng, progress_bar(quiet) as bar:
@@ -239,7 +252,7 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
                                           for g, j in units], shared=[scene], on_result=got, name="slab-row")
 
             try:
-                slabs = acquire_direct(geoms, None, folder, config.direct, rows=rows)
+                slabs = acquire_direct(geoms, None, folder, config.direct, rows=rows, dtype=PRECISIONS[config.precision])
             finally:
                 eng.release(scene)
         info.update(renderer=renderer, renders=total)
@@ -249,26 +262,77 @@ def build_slabs(capture_dir: Path, folder: Path, config: SlabStageConfig, poses_
 
             up = np.asarray(load_spec(scene_file)[0].up, dtype=np.float64)
         geoms = _layout(config, bounds, train, up)
+        info["fit"] = check_slab_fits(geoms, config, folder)
         bg = _background(views)
         with progress_bar(quiet) as bar:
             task = bar.add_task("slab: rebin", total=sum(g.shape[0] * g.shape[1] for g in geoms), info="")
             try:
-                slabs, stats = rebin_slabs(geoms, views, folder, config.rebin, bg, lambda n: bar.advance(task, n))
+                slabs, stats = rebin_slabs(geoms, views, folder, config.rebin, bg, lambda n: bar.advance(task, n),
+                                           dtype=PRECISIONS[config.precision])
             except ValueError as exc:
                 raise BadInput(f"rebinning failed: {str(exc).splitlines()[0]}") from None
         info.update(stats.to_dict(), background=bg.tolist())
     info["build_s"] = round(time.perf_counter() - t0, 3)
     info["slabs"] = {s.geometry.name: {"shape": list(s.geometry.shape), "bytes": s.nbytes} for s in slabs}
+    info["rays"] = layout_rays([s.geometry for s in slabs])
+    info["precision"] = config.precision
     info["bytes"] = int(sum(s.nbytes for s in slabs))
     info["radiance_bytes"] = int(sum(s.radiance.nbytes for s in slabs))
     return slabs, info
 
 
 def _layout(config: SlabStageConfig, bounds: np.ndarray, train: list[Camera], up: np.ndarray):
+    """The layout's slabs for the train cameras (their focal lengths size st when the layout does
+    not fix st_res: the larger of fx, fy, pixels)."""
+    focal = np.array([max(c.intrinsics.fx, c.intrinsics.fy) for c in train])
     try:
-        return slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up)
+        return slab_layout(config.layout, bounds, np.stack([c.center for c in train]), up, focal)
     except ValueError as exc:
         raise BadInput(f"slab layout: {str(exc).splitlines()[0]}") from None
+
+
+def slab_set_bytes(geometries, precision: str) -> int:
+    """Bytes of a slab set's arrays: radiance (3 values) and depth (1 value) per ray at ``precision``."""
+    return layout_rays(geometries) * 4 * np.dtype(PRECISIONS[precision]).itemsize
+
+
+#: bytes per ray of the largest slab's transient float32 copies: VQ encoding's tiles and decoded
+#: check (12 + 12) and its depth (4); without compression, rebinning's splatted proxy depth (4)
+#: and slack (4)
+WORKING_BYTES_PER_RAY = {True: 28, False: 8}
+
+
+def _available_memory() -> int:
+    import psutil
+
+    return int(psutil.virtual_memory().available)
+
+
+def check_slab_fits(geometries, config: SlabStageConfig, folder: Path) -> dict:
+    """Refuse (BadInput: one line naming the layout's st field) a slab set that cannot fit this
+    machine, before anything is allocated: its arrays plus the largest slab's working copies
+    (:data:`WORKING_BYTES_PER_RAY`) must fit the memory available now (the arrays are memory
+    mapped, and the held-out renders read them at random: a set larger than memory would page
+    from disk for every view), and the arrays the free disk space under ``folder``. Returns the
+    figures (bytes) for metrics.json."""
+    arrays = slab_set_bytes(geometries, config.precision)
+    working = max(g.n_rays for g in geometries) * WORKING_BYTES_PER_RAY[bool(config.compress)]
+    avail = _available_memory()
+    where = Path(folder)
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    disk = shutil.disk_usage(where).free
+    lay = config.layout
+    knob = f"st_res={lay.st_res}" if lay.st_res is not None else f"st_per_pixel={lay.st_per_pixel:g}"
+    gib = 2.0 ** 30
+    rays = layout_rays(geometries)
+    if arrays + working > avail or arrays > disk:
+        short = (f"{(arrays + working) / gib:.2f} GiB of memory, {avail / gib:.2f} GiB available"
+                 if arrays + working > avail else f"{arrays / gib:.2f} GiB of disk, {disk / gib:.2f} GiB free")
+        raise BadInput(f"slab layout {knob}: {len(geometries)} slabs of {rays / 1e6:.1f}M rays ({config.precision} "
+                       f"samples) need {short}: lower {knob.split('=')[0]}")
+    return {"rays": rays, "array_bytes": arrays, "working_bytes": working, "available_memory_bytes": avail,
+            "free_disk_bytes": disk}
 
 
 def _background(views: list[SourceView]) -> np.ndarray:
@@ -420,6 +484,8 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
                    "linear_psnr_mean": primary["linear_psnr_mean"], "mode": config.mode, "method": config.method,
                    "reference": ref_kind, "per_view": primary["per_view"],
                    "modes": by_mode, "build": info, **({"compression": compression} if compression else {})}
+        # this process's high-water mark (ru_maxrss: KiB on Linux); a Dask cluster's workers not included
+        metrics["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
         write_json(tmp / "metrics.json", metrics)
         manifest.metrics = {"display_psnr_mean": primary["display_psnr_mean"],
                             "display_ssim_mean": primary["display_ssim_mean"],
@@ -430,7 +496,7 @@ def run_slab(capture_dir: Path, poses_dir: Path | None, out: Path, config: SlabS
                             **({"vq_ratio_vs_float32": compression["ratio_vs_float32"],
                                 "vq_display_psnr_cost": compression["display_psnr_cost"][config.mode]}
                                if compression else {}),
-                            "engine": eng.name, "workers": eng.workers}
+                            "engine": eng.name, "workers": eng.workers, "peak_rss_mb": metrics["peak_rss_mb"]}
         result = manifest.write(tmp)
     return result
 

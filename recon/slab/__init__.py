@@ -9,12 +9,13 @@ with it torch, on first use: the rest is numpy, so the CLI reads :class:`LayoutC
 without paying for torch.
 """
 from .direct import DirectConfig, acquire_direct, acquire_row, renders_per_uv, uv_subsamples
-from .layout import LayoutConfig, box_normals, content_bounds, fit_slabs, ring_normals, slab_layout
+from .layout import (LayoutConfig, box_normals, content_bounds, fit_slabs, layout_rays, ring_normals, slab_layout,
+                     st_density)
 from .rebin import RebinConfig, RebinStats, SourceView, rebin_slabs
 
 __all__ = ["VQConfig", "VQStats", "compress_slabs", "DirectConfig", "acquire_direct", "acquire_row", "renders_per_uv",
-           "uv_subsamples", "LayoutConfig", "box_normals", "content_bounds", "fit_slabs", "ring_normals",
-           "slab_layout", "SourceView", "RebinConfig", "RebinStats", "rebin_slabs"]
+           "uv_subsamples", "LayoutConfig", "box_normals", "content_bounds", "fit_slabs", "layout_rays", "ring_normals",
+           "st_density", "slab_layout", "SourceView", "RebinConfig", "RebinStats", "rebin_slabs"]
 
 _COMPRESS = ("VQConfig", "VQStats", "compress_slabs")
 

@@ -111,8 +111,9 @@ RowsFn = Callable[[list[tuple[SlabGeometry, int]], Callable[[int, np.ndarray, np
 
 def acquire_direct(geometries: Sequence[SlabGeometry], render: RenderFn | None, folder,
                    config: DirectConfig = DirectConfig(), progress: Callable[[int], None] | None = None,
-                   rows: RowsFn | None = None) -> list[LightSlab]:
-    """Render and assemble slabs into memory-mapped arrays in ``folder`` (and its slabs.json).
+                   rows: RowsFn | None = None, dtype=np.float32) -> list[LightSlab]:
+    """Render and assemble slabs into memory-mapped arrays of ``dtype`` (float32 or float16: the
+    rows are rounded as they are placed) in ``folder`` (and its slabs.json).
 
     ``render`` is called with cameras of size (Ns, Nt) x ``st_supersample`` (one size per slab).
     ``progress(n)`` is called after each uv sample with the number of renders it took.
@@ -122,7 +123,7 @@ def acquire_direct(geometries: Sequence[SlabGeometry], render: RenderFn | None, 
     Returns the slabs, backed by the memmaps in ``folder``.
     """
     folder = Path(folder)
-    slabs = [LightSlab(geom, *create_slab_arrays(folder, geom, with_depth=True)) for geom in geometries]
+    slabs = [LightSlab(geom, *create_slab_arrays(folder, geom, with_depth=True, dtype=dtype)) for geom in geometries]
     units = [(s, j) for s in slabs for j in range(s.geometry.shape[1])]
 
     def put(k: int, rad: np.ndarray, depth: np.ndarray) -> None:

@@ -10,42 +10,59 @@ from inside the camera region crosses both quads of the slab it is looked up in.
 Layouts: ``ring`` (``count`` slabs whose normals share the cameras' median elevation about
 ``up``, at equal azimuth steps: a band facing turntable rings) and ``box`` (the faces of a box:
 +-x, +-y and +up, the bottom omitted since nothing looks from below a turntable).
+
+st sampling follows the capture's pixel footprint on the focal (st) plane (:func:`st_density`):
+a capture pixel of focal length f (pixels) at distance r from the content centre covers
+r / (f sqrt(1 - (e . d)^2)) metres of the plane along its axis e (d: the viewing direction), so an
+st quad of width W needs W f sqrt(1 - (e . d)^2) / r samples per pixel of detail, taken at the
+slab's most head-on camera. With depth correction a surface off the plane is looked up through
+the same sheared cameras, whose rays fan out as the capture's do, so this one density holds at
+every depth. A fixed ``st_res`` (the slab study's sweeps) overrides it.
 """
 from __future__ import annotations
 
 from collections.abc import Sequence
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from render.lightfield import SlabGeometry
 
-__all__ = ["LayoutConfig", "ring_normals", "box_normals", "content_bounds", "fit_slabs", "slab_layout"]
+__all__ = ["LayoutConfig", "ring_normals", "box_normals", "content_bounds", "st_density", "fit_slabs", "slab_layout",
+           "layout_rays"]
 
 
 @dataclass(frozen=True)
 class LayoutConfig:
-    """kind: ``ring`` or ``box``; count: ring slabs; uv_res / st_res: samples along the longer
-    side of each uv / st quad (the shorter side in proportion, at least 2); margin: fraction of
-    each quad's size added on every side.
+    """kind: ``ring`` or ``box``; count: ring slabs; uv_res: samples along the longer side of each
+    uv quad (the shorter side in proportion, at least 2); st_per_pixel: st samples per capture
+    pixel of the subject's footprint on the st plane, along each side (:func:`st_density`; the
+    default: detail down to the capture's own pixels); st_res: a fixed count along the longer
+    side of each st quad instead (None: from the footprint); margin: fraction of each quad's
+    size added on every side.
 
-    Defaults (uv 8, st 384; ~500 MB of float32 radiance for the default scene's 8 ring slabs):
-    with depth correction the held-out views' PSNR follows the st sampling and hardly the uv
-    sampling (slab study on the 1280x960 turntable, depth mode: st 192 -> 24.0 / 24.1 / 24.0 dB
-    at uv 8 / 16 / 24, st 256 -> 25.6 / 25.7 / 25.8 dB; uv 8 x st 384 -> 28.1 dB), so memory goes
-    to st. uv 16 x st 192, the previous default, is the same memory at 24.1 dB."""
+    Why st follows the capture: with depth correction the held-out views' display PSNR follows
+    the st sampling and hardly the uv sampling (slab study, 1280x960 turntable, depth mode,
+    linear PSNR: st 192 -> 24.0 / 24.1 / 24.0 dB at uv 8 / 16 / 24; uv 8 x st 384 -> 28.1 dB),
+    and at st 384 a ChArUco board ~540 capture pixels wide got ~250 samples: soft markers. The
+    footprint gives the default scene ~1000-1200 samples per st side (docs/architecture.md has
+    the measured figures), so memory goes to st."""
 
     kind: str = "ring"
     count: int = 8
     uv_res: int = 8
-    st_res: int = 384
+    st_res: int | None = None
+    st_per_pixel: float = 1.0
     margin: float = 0.04
 
     def __post_init__(self):
         if self.kind not in ("ring", "box"):
             raise ValueError(f"layout kind must be 'ring' or 'box', got {self.kind!r}")
-        if self.count < 3 or self.uv_res < 1 or self.st_res < 2 or not 0 <= self.margin < 1:
+        if self.count < 3 or self.uv_res < 1 or (self.st_res is not None and self.st_res < 2) or not 0 <= self.margin < 1:
             raise ValueError(f"bad slab layout {self}")
+        if not (math.isfinite(self.st_per_pixel) and 0 < self.st_per_pixel <= 16):
+            raise ValueError(f"st_per_pixel must be in (0, 16], got {self.st_per_pixel}")
 
 
 def _unit(v) -> np.ndarray:
@@ -109,10 +126,30 @@ def _counts(size: tuple[float, float], res: int) -> tuple[int, int]:
     return max(2, int(round(res * w / h))), res
 
 
+def st_density(centre: np.ndarray, eyes: np.ndarray, focal_px: np.ndarray, axes: Sequence[np.ndarray]) -> np.ndarray:
+    """(len(axes),) capture pixels per metre along each unit ``axes`` vector of a plane through
+    ``centre`` (3,), at its most head-on camera: max over cameras at ``eyes`` (M, 3) with focal
+    lengths ``focal_px`` (M,) pixels of f / r sqrt(1 - (e . d)^2) (r, d: distance and unit
+    direction from the eye to ``centre``; a pinhole looking at the centre)."""
+    to_c = np.asarray(centre, np.float64) - np.asarray(eyes, np.float64).reshape(-1, 3)
+    r = np.linalg.norm(to_c, axis=1)
+    if np.any(r < 1e-9):
+        raise ValueError("a camera sits at the content centre: no pixel footprint")
+    d = to_c / r[:, None]
+    f = np.asarray(focal_px, np.float64).reshape(-1)
+    return np.array([np.max(f / r * np.sqrt(np.clip(1.0 - (d @ e) ** 2, 0.0, 1.0))) for e in axes])
+
+
 def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_res: int = LayoutConfig.uv_res,
-              st_res: int = LayoutConfig.st_res, margin: float = LayoutConfig.margin, names: Sequence[str] | None = None) -> list[SlabGeometry]:
+              st_res: int | None = LayoutConfig.st_res, margin: float = LayoutConfig.margin,
+              names: Sequence[str] | None = None, focal_px=None,
+              st_per_pixel: float = LayoutConfig.st_per_pixel) -> list[SlabGeometry]:
     """Slab geometries for viewing ``normals`` (K, 3) around content ``bounds`` (2, 3) seen from
-    camera centres ``eyes`` (M, 3). A slab no camera looks through is left out."""
+    camera centres ``eyes`` (M, 3). A slab no camera looks through is left out.
+
+    st counts: ``st_res`` along each st quad's longer side, or (``st_res`` None) ceil(st_per_pixel
+    x side x :func:`st_density`) per side from the cameras' focal lengths ``focal_px`` (M,) or
+    scalar, pixels, over the cameras that look through that slab."""
     normals = _unit(np.asarray(normals, dtype=np.float64).reshape(-1, 3))
     bounds = np.asarray(bounds, dtype=np.float64)
     eyes = np.asarray(eyes, dtype=np.float64).reshape(-1, 3)
@@ -121,6 +158,12 @@ def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_
         raise ValueError(f"bounds must be finite (2, 3) [lo, hi], got {bounds.tolist()}")
     if len(eyes) == 0 or not np.all(np.isfinite(eyes)):
         raise ValueError("need finite camera centres to fit slabs")
+    if st_res is None:
+        if focal_px is None:
+            raise ValueError("st sampling from the pixel footprint needs the cameras' focal lengths (focal_px)")
+        focal_px = np.broadcast_to(np.asarray(focal_px, np.float64), (len(eyes),))
+        if not (np.all(np.isfinite(focal_px)) and np.all(focal_px > 0)):
+            raise ValueError("focal lengths must be finite and positive")
     centre = bounds.mean(0)
     X = _box_points(bounds)                                   # (9, 3)
     rays = X[None] - eyes[:, None]                            # (M, 9, 3) eye -> content
@@ -158,7 +201,11 @@ def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_
                                        o + x1 * e_s + y1 * e_t, o + x0 * e_s + y1 * e_t])
         size = lambda q: (q[1][0] - q[0][0], q[1][1] - q[0][1])  # noqa: E731
         nu, nv = _counts(size(quads["uv"]), uv_res)
-        ns, nt = _counts(size(quads["st"]), st_res)
+        if st_res is None:
+            density = st_density(centre, eyes[mine], focal_px[mine], (e_s, e_t))
+            ns, nt = (max(2, math.ceil(st_per_pixel * w * dens - 1e-9)) for w, dens in zip(size(quads["st"]), density))
+        else:
+            ns, nt = _counts(size(quads["st"]), st_res)
         name = names[k] if names is not None else f"slab{k:02d}"
         geoms.append(SlabGeometry(corners["uv"], corners["st"], (nu, nv, ns, nt), name))
     if not geoms:
@@ -166,8 +213,9 @@ def fit_slabs(normals: np.ndarray, bounds: np.ndarray, eyes: np.ndarray, up, uv_
     return geoms
 
 
-def slab_layout(config: LayoutConfig, bounds: np.ndarray, eyes: np.ndarray, up) -> list[SlabGeometry]:
-    """The slab geometries of ``config`` around ``bounds`` (2, 3) for cameras at ``eyes`` (M, 3).
+def slab_layout(config: LayoutConfig, bounds: np.ndarray, eyes: np.ndarray, up, focal_px=None) -> list[SlabGeometry]:
+    """The slab geometries of ``config`` around ``bounds`` (2, 3) for cameras at ``eyes`` (M, 3)
+    with focal lengths ``focal_px`` (M,) pixels (needed when ``config.st_res`` is None).
 
     The ring's elevation is the cameras' median elevation seen from the content centre."""
     up = _unit(up)
@@ -178,4 +226,10 @@ def slab_layout(config: LayoutConfig, bounds: np.ndarray, eyes: np.ndarray, up) 
         normals = ring_normals(config.count, elevation, up)
     else:
         normals = box_normals(up)
-    return fit_slabs(normals, bounds, eyes, up, config.uv_res, config.st_res, config.margin)
+    return fit_slabs(normals, bounds, eyes, up, config.uv_res, config.st_res, config.margin, focal_px=focal_px,
+                     st_per_pixel=config.st_per_pixel)
+
+
+def layout_rays(geometries: Sequence[SlabGeometry]) -> int:
+    """Rays (samples) of a slab set: what its arrays' size is proportional to."""
+    return int(sum(g.n_rays for g in geometries))

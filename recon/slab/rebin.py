@@ -125,8 +125,20 @@ def point_cloud(views: Sequence[SourceView], voxel: float, edge_jump: float = 0.
     if not pts:
         raise ValueError("no captured view has depth: nothing to rebin")
     p = np.concatenate(pts)
-    _, first = np.unique(np.floor(p / voxel).astype(np.int64), axis=0, return_index=True)
-    return p[np.sort(first)]
+    return p[np.sort(_first_per_voxel(np.floor(p / voxel).astype(np.int64)))]
+
+
+def _first_per_voxel(cells: np.ndarray) -> np.ndarray:
+    """Index of the first row of each distinct (N, 3) int64 voxel coordinate, as
+    ``np.unique(cells, axis=0, return_index=True)[1]``: the rows packed into one int64 key each
+    (a 1-D sort; the row-wise unique sorts void records and took 60% of a rebin at st 192)."""
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(np.prod(span.astype(np.float64))) >= 2.0 ** 62:  # keys would overflow: the row-wise way
+        return np.unique(cells, axis=0, return_index=True)[1]
+    c = cells - lo
+    keys = (c[:, 0] * span[1] + c[:, 1]) * span[2] + c[:, 2]
+    return np.unique(keys, return_index=True)[1]
 
 
 def _fill_single_holes(z: np.ndarray) -> np.ndarray:
@@ -244,8 +256,10 @@ def _blend_rays(views: _Views, P: np.ndarray, r: np.ndarray, cfg: RebinConfig, t
 
 def rebin_slabs(geometries: Sequence[SlabGeometry], views: Sequence[SourceView], folder,
                 config: RebinConfig = RebinConfig(), background=(0.0, 0.0, 0.0),
-                progress: Callable[[int], None] | None = None) -> tuple[list[LightSlab], RebinStats]:
-    """Fill slabs from captures into memory-mapped arrays in ``folder`` (and its slabs.json).
+                progress: Callable[[int], None] | None = None,
+                dtype=np.float32) -> tuple[list[LightSlab], RebinStats]:
+    """Fill slabs from captures into memory-mapped arrays of ``dtype`` (float32 or float16) in
+    ``folder`` (and its slabs.json).
 
     ``progress(1)`` is called after each uv sample. Returns the slabs and their coverage.
     """
@@ -257,7 +271,7 @@ def rebin_slabs(geometries: Sequence[SlabGeometry], views: Sequence[SourceView],
     stats, slabs = RebinStats(), []
     for geom in geometries:
         nu, nv, ns, nt = geom.shape
-        rad, depth = create_slab_arrays(Path(folder), geom, with_depth=True)
+        rad, depth = create_slab_arrays(Path(folder), geom, with_depth=True, dtype=dtype)
         depth[:] = splat_depth(geom, cloud)
         D = geom.distance
         st_pts = np.stack(np.meshgrid(geom.st_offset[0] + (np.arange(ns) + 0.5) / ns * geom.st_size[0],

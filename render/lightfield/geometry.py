@@ -17,9 +17,9 @@ Conventions (tested in ``tests/render/test_slab.py``):
 * Sample (i, j) of an axis of N samples sits at the cell centre ``(i + 0.5) / N`` (pixel centres
   at +0.5), so the st samples of a uv sample are exactly the pixels of the sheared-perspective
   camera :func:`sheared_camera` (image plane = the st quad).
-* ``radiance`` is ``(Nv, Nu, Nt, Ns, 3)`` float32 linear RGB: an Nv x Nu grid of Nt x Ns
-  images, row-major like images (memory-mappable). ``depth`` (optional) is ``(Nv, Nu, Nt, Ns)``
-  float32: the distance along ``forward`` from the uv plane to the first surface on that ray
+* ``radiance`` is ``(Nv, Nu, Nt, Ns, 3)`` float32 (or float16) linear RGB: an Nv x Nu grid of
+  Nt x Ns images, row-major like images (memory-mappable). ``depth`` (optional) is ``(Nv, Nu, Nt, Ns)``
+  float32 (or float16): the distance along ``forward`` from the uv plane to the first surface on that ray
   (the sheared camera's z-depth), 0 where the ray hits nothing.
 
 Compression: ``radiance`` may be a :class:`VQRadiance` (2 x 2 x 2 x 2 ray tiles coded against a
@@ -34,7 +34,7 @@ import numpy as np
 
 from ..camera import Camera, Intrinsics
 
-__all__ = ["SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "MIN_COS", "check_rays", "slab_coordinates",
+__all__ = ["SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "MIN_COS", "SAMPLE_DTYPES", "check_rays", "slab_coordinates",
            "sheared_camera"]
 
 #: rays whose direction makes |cos| below this with a slab's normal are treated as parallel
@@ -195,15 +195,21 @@ class VQRadiance:
         return out
 
 
+#: sample dtypes a slab's radiance and depth arrays may have: float16 halves the memory of a slab
+#: set sized to the capture's pixels (a relative rounding of 2^-11, far below 8-bit display steps)
+SAMPLE_DTYPES = (np.dtype(np.float32), np.dtype(np.float16))
+
+
 @dataclass
 class LightSlab:
     """A slab's geometry and samples.
 
-    radiance: (Nv, Nu, Nt, Ns, 3) float32 linear RGB (a numpy array or memmap), or the same
-    vector-quantized (:class:`VQRadiance`).
-    depth: optional (Nv, Nu, Nt, Ns) float32 distance along ``forward`` from the uv plane to the
-    first surface (0 = nothing). focal_depth: distance from the uv plane of the focal plane the
-    ``depth`` mode uses where there is no depth (None: the st plane, i.e. ``distance``).
+    radiance: (Nv, Nu, Nt, Ns, 3) float32 or float16 linear RGB (a numpy array or memmap), or the
+    same vector-quantized (:class:`VQRadiance`).
+    depth: optional (Nv, Nu, Nt, Ns) float32 or float16 distance along ``forward`` from the uv
+    plane to the first surface (0 = nothing). focal_depth: distance from the uv plane of the focal
+    plane the ``depth`` mode uses where there is no depth (None: the st plane, i.e. ``distance``).
+    Renderers read float16 samples as the float32 values they round-trip to.
     """
 
     geometry: SlabGeometry
@@ -213,11 +219,11 @@ class LightSlab:
 
     def __post_init__(self) -> None:
         g = self.geometry
-        if tuple(self.radiance.shape) != g.array_shape or self.radiance.dtype != np.float32:
-            raise ValueError(f"slab {g.name!r}: radiance must be {g.array_shape} float32, "
+        if tuple(self.radiance.shape) != g.array_shape or self.radiance.dtype not in SAMPLE_DTYPES:
+            raise ValueError(f"slab {g.name!r}: radiance must be {g.array_shape} float32 or float16, "
                              f"got {self.radiance.shape} {self.radiance.dtype}")
-        if self.depth is not None and (self.depth.shape != g.array_shape[:4] or self.depth.dtype != np.float32):
-            raise ValueError(f"slab {g.name!r}: depth must be {g.array_shape[:4]} float32, "
+        if self.depth is not None and (self.depth.shape != g.array_shape[:4] or self.depth.dtype not in SAMPLE_DTYPES):
+            raise ValueError(f"slab {g.name!r}: depth must be {g.array_shape[:4]} float32 or float16, "
                              f"got {self.depth.shape} {self.depth.dtype}")
         if self.focal_depth is not None and not (np.isfinite(self.focal_depth) and self.focal_depth > 0):
             raise ValueError(f"slab {g.name!r}: focal_depth must be a positive distance, got {self.focal_depth}")

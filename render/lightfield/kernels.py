@@ -23,11 +23,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from .geometry import MIN_COS  # numba freezes it as a constant
 
-__all__ = ["N_PARAMS", "MODE_IDS", "select_band", "interpolate_band"]
+__all__ = ["N_PARAMS", "MODE_IDS", "HALF_TO_FLOAT", "select_band", "interpolate_band"]
+
+#: (65536,) float32 value of every float16 bit pattern: numba has no float16 on the CPU, so half
+#: precision samples reach the kernels as uint16 and are decoded by one lookup (256 KiB, cached)
+HALF_TO_FLOAT = np.arange(2**16, dtype=np.uint32).astype(np.uint16).view(np.float16).astype(np.float32)
 
 N_PARAMS = 20
 MODE_IDS = {"nearest": 0, "uv": 1, "st": 2, "quadrilinear": 3, "depth": 4}
@@ -93,6 +98,17 @@ def _taps(c, n, linear):
     return i0, 1.0 - f, i0 + 1, f, 2
 
 
+def _sample(x, lut):
+    """A stored sample as a float: uint16 (float16 bits) through ``lut``, floats as they are."""
+
+
+@overload(_sample, inline="always")
+def _sample_impl(x, lut):
+    if isinstance(x, types.Integer):
+        return lambda x, lut: lut[x]
+    return lambda x, lut: x
+
+
 @njit(inline="always", **_JIT)
 def _row(codes, vq, dims, tdims, iv, iu, it, is_):
     """Row of the (M, 3) sample table holding ray (iv, iu, it, is_): of the radiance array, or
@@ -104,17 +120,17 @@ def _row(codes, vq, dims, tdims, iv, iu, it, is_):
 
 
 @njit(**_JIT)
-def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, mode, best, k, row0, row1, width, out):
+def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, lut, mode, best, k, row0, row1, width, out):
     """Radiance of the pixels of rows [row0, row1) whose ``best`` slab is ``k`` into ``out``
     ((row1 - row0) * width, 3) float32, interpolated in ``mode`` (:data:`MODE_IDS`).
 
     params: (S, N_PARAMS) float64 (row k is this slab's); dims: (4,) int64 (Nu, Nv, Ns, Nt). Samples: ``rad``
-    (Nv Nu Nt Ns, 3) float32 when ``codes`` is empty, else vector-quantized: ``codes``
+    (Nv Nu Nt Ns, 3) float32, or uint16 float16 bit patterns decoded through ``lut``
+    (:data:`HALF_TO_FLOAT`), when ``codes`` is empty, else vector-quantized: ``codes``
     (Tv Tu Tt Ts,) codewords, ``codebook`` (K 16, 3) float32 with tile dims ``tdims`` (4,) int64
-    (Tv, Tu, Tt, Ts). depth: (Nv Nu Nt Ns,) float32 or empty (no depth)."""
+    (Tv, Tu, Tt, Ts). depth: (Nv Nu Nt Ns,) float32 or uint16 (float16 bits), or empty (no depth)."""
     nu, nv, ns, nt = dims[0], dims[1], dims[2], dims[3]
     vq = codes.shape[0] > 0
-    table = codebook if vq else rad
     has_depth = depth.shape[0] > 0
     D = params[k, 12]
     ks = params[k, 13] * ns / (params[k, 15] * nu)
@@ -137,7 +153,7 @@ def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, mode, bes
                     ju, _, _, _, _ = _taps(cu, nu, False)
                     jt, _, _, _, _ = _taps(ct, nt, False)
                     js, _, _, _, _ = _taps(cs, ns, False)
-                    z = depth[((jv * nu + ju) * nt + jt) * ns + js]
+                    z = _sample(depth[((jv * nu + ju) * nt + jt) * ns + js], lut)
                     if z > 1e-6 * D:
                         zeta = z
                 shift = D / zeta - 1.0
@@ -161,9 +177,14 @@ def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, mode, bes
                             is_ = s0 if d_ == 0 else s1
                             w = wv * wu * wt * (ws0 if d_ == 0 else ws1)
                             m = _row(codes, vq, dims, tdims, iv, iu, it, is_)
-                            r += w * table[m, 0]
-                            g += w * table[m, 1]
-                            b += w * table[m, 2]
+                            if vq:
+                                r += w * codebook[m, 0]
+                                g += w * codebook[m, 1]
+                                b += w * codebook[m, 2]
+                            else:
+                                r += w * _sample(rad[m, 0], lut)
+                                g += w * _sample(rad[m, 1], lut)
+                                b += w * _sample(rad[m, 2], lut)
             out[q, 0] = r
             out[q, 1] = g
             out[q, 2] = b

@@ -72,7 +72,7 @@ def _fetch(radiance, iv, it, iu, is_) -> np.ndarray:
         return radiance.codebook.reshape(-1, 3).take(code * 16 + off, axis=0)
     nv, nu, nt, ns = radiance.shape[:4]
     idx = (_pairs(iv, it, nu * nt * ns, ns)[:, :, None] + _pairs(iu, is_, nt * ns, 1)[:, None, :]).reshape(n, -1)
-    return np.asarray(radiance).reshape(-1, 3).take(idx, axis=0)
+    return np.asarray(radiance).reshape(-1, 3).take(idx, axis=0).astype(np.float32, copy=False)
 
 
 def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
@@ -97,7 +97,8 @@ def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
         zeta = np.full(n, D if slab.focal_depth is None else slab.focal_depth, np.float32)
         if slab.depth is not None:
             near = [_axis(c, m, False)[0][:, 0] for c, m in ((cv, nv), (cu, nu), (ct, nt), (cs, ns))]
-            z = np.asarray(slab.depth).reshape(-1).take(((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3])
+            z = np.asarray(slab.depth).reshape(-1).take(((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3]
+                                                        ).astype(np.float32, copy=False)
             zeta = np.where(z > 1e-6 * D, z, zeta)  # 0 = no surface: keep the focal plane
         shift = D / zeta - 1.0
         ks = g.uv_size[0] * ns / (g.st_size[0] * nu)
@@ -202,16 +203,23 @@ def _kernel_params(slab: LightSlab, pix_to_world: np.ndarray, eye: np.ndarray) -
     return np.concatenate([A.reshape(-1), eye, [g.distance], g.uv_size, g.st_size, g.st_offset, [focal]])
 
 
+def _as_kernel_samples(a: np.ndarray) -> np.ndarray:
+    """A float32 array as is, a float16 one as its uint16 bit patterns (numba has no float16 on
+    the CPU; the kernels decode them through :data:`render.lightfield.kernels.HALF_TO_FLOAT`). Views, no copies."""
+    a = np.asarray(a)
+    return a.view(np.uint16) if a.dtype == np.float16 else a
+
+
 def _kernel_arrays(slab: LightSlab) -> tuple:
     """(dims, rad, depth, codes, codebook, tdims) of a slab as the kernels take them (views, no copies)."""
     nu, nv, ns, nt = slab.geometry.shape
     dims = np.array([nu, nv, ns, nt], np.int64)
-    depth = np.zeros(0, np.float32) if slab.depth is None else np.asarray(slab.depth).reshape(-1)
+    depth = np.zeros(0, np.float32) if slab.depth is None else _as_kernel_samples(slab.depth).reshape(-1)
     r = slab.radiance
     if isinstance(r, VQRadiance):
         return (dims, np.zeros((0, 3), np.float32), depth, r.codes.reshape(-1), r.codebook.reshape(-1, 3),
                 np.array(r.codes.shape, np.int64))
-    return (dims, np.asarray(r).reshape(-1, 3), depth, np.zeros(0, np.uint16), np.zeros((0, 3), np.float32),
+    return (dims, _as_kernel_samples(r).reshape(-1, 3), depth, np.zeros(0, np.uint16), np.zeros((0, 3), np.float32),
             np.zeros(4, np.int64))
 
 
@@ -246,7 +254,7 @@ def render_pinhole(slabs: Sequence[LightSlab], camera: Camera, mode: str = "quad
         sk.select_band(params, r0, r1, k.width, best)
         part = out[r0 * k.width:r1 * k.width]
         for i, arr in enumerate(arrays):
-            sk.interpolate_band(params, *arr[:6], mode_id, best, i, r0, r1, k.width, part)
+            sk.interpolate_band(params, *arr[:6], sk.HALF_TO_FLOAT, mode_id, best, i, r0, r1, k.width, part)
 
     threads = max(1, min(int(threads), k.height))
     edges = np.linspace(0, k.height, threads + 1).astype(int)

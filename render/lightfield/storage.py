@@ -4,8 +4,8 @@ A slab set in a folder::
 
     slabs.json                 format, and per slab: geometry (corners, shape), focal_depth,
                                the file names of its arrays, and the array conventions in words
-    <name>.radiance.npy        (Nv, Nu, Nt, Ns, 3) float32 linear RGB (see :mod:`render.lightfield.geometry`)
-    <name>.depth.npy           (Nv, Nu, Nt, Ns) float32 distance from the uv plane, 0 = empty (optional)
+    <name>.radiance.npy        (Nv, Nu, Nt, Ns, 3) float32 or float16 linear RGB (see :mod:`render.lightfield.geometry`)
+    <name>.depth.npy           (Nv, Nu, Nt, Ns) float32 or float16 distance from the uv plane, 0 = empty (optional)
 
 or, for a vector-quantized slab (:class:`render.lightfield.geometry.VQRadiance`; ``radiance`` is null and
 ``vq`` names the files)::
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..image_io import atomic_path
-from .geometry import LightSlab, SlabGeometry, VQRadiance
+from .geometry import SAMPLE_DTYPES, LightSlab, SlabGeometry, VQRadiance
 
 __all__ = ["SLABS_JSON", "SLABS_FORMAT", "create_slab_arrays", "write_slab_index", "save_slabs", "load_slabs",
            "slab_file_bytes"]
@@ -44,8 +44,8 @@ _CONVENTION = {
     "corners": "world corners in the order (0,0), (1,0), (1,1), (0,1); u/s along corner1-corner0, v/t along corner3-corner0",
     "orientation": "forward = e_s x e_t points from the uv plane to the st plane; radiance seen by eye rays along +forward",
     "samples": "sample i of N sits at (i + 0.5) / N (cell centres)",
-    "radiance": "(Nv, Nu, Nt, Ns, 3) float32 linear RGB",
-    "depth": "(Nv, Nu, Nt, Ns) float32 distance along forward from the uv plane to the first surface, 0 = empty",
+    "radiance": "(Nv, Nu, Nt, Ns, 3) float32 or float16 linear RGB (the .npy header says which)",
+    "depth": "(Nv, Nu, Nt, Ns) float32 or float16 distance along forward from the uv plane to the first surface, 0 = empty",
     "vq": "radiance[iv, iu, it, is] = codebook[codes[iv // 2, iu // 2, it // 2, is // 2], iv % 2, iu % 2, it % 2, is % 2]; "
           "codes LZMA-compressed .npy, codebook (K, 2, 2, 2, 2, 3) float16",
 }
@@ -62,23 +62,28 @@ def _names(geom: SlabGeometry, slab: LightSlab | None = None) -> tuple[str, str]
 
 
 def _is_float16(a: np.ndarray) -> bool:
-    return bool(np.array_equal(np.asarray(a).astype(np.float16).astype(np.float32), a))
+    a = np.asarray(a)
+    return a.dtype == np.float16 or bool(np.array_equal(a.astype(np.float16).astype(np.float32), a))
 
 
-def create_slab_arrays(folder, geom: SlabGeometry, with_depth: bool = True
+def create_slab_arrays(folder, geom: SlabGeometry, with_depth: bool = True, dtype=np.float32
                        ) -> tuple[np.memmap, np.memmap | None]:
-    """Create zero-filled writable memmaps for a slab's radiance (and depth) in ``folder``.
+    """Create zero-filled writable memmaps for a slab's radiance (and depth) in ``folder``, of
+    ``dtype`` (float32 or float16: :data:`render.lightfield.geometry.SAMPLE_DTYPES`).
 
     The caller fills them and then calls :func:`write_slab_index`; until the index names them,
     the arrays are not part of a slab set (pipeline stages write into an atomic stage folder).
     """
+    dtype = np.dtype(dtype)
+    if dtype not in SAMPLE_DTYPES:
+        raise ValueError(f"slab sample dtype must be float32 or float16, got {dtype}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     rad_name, depth_name = _names(geom)
-    rad = np.lib.format.open_memmap(folder / rad_name, mode="w+", dtype=np.float32, shape=geom.array_shape)
+    rad = np.lib.format.open_memmap(folder / rad_name, mode="w+", dtype=dtype, shape=geom.array_shape)
     depth = None
     if with_depth:
-        depth = np.lib.format.open_memmap(folder / depth_name, mode="w+", dtype=np.float32, shape=geom.array_shape[:4])
+        depth = np.lib.format.open_memmap(folder / depth_name, mode="w+", dtype=dtype, shape=geom.array_shape[:4])
     return rad, depth
 
 
@@ -137,6 +142,11 @@ def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> 
     return out
 
 
+def _sample_dtype(arr: np.ndarray) -> np.dtype:
+    """The dtype a sample array is stored in: its own, float32 or float16."""
+    return np.dtype(np.float16) if np.asarray(arr).dtype == np.float16 else np.dtype(np.float32)
+
+
 def _save_npy(path: Path, arr: np.ndarray, dtype) -> None:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{path}: refusing to write non-finite values")
@@ -166,7 +176,7 @@ def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
             with atomic_path(folder / f"{s.geometry.name}.codes.npy.xz") as tmp:
                 Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=6))
         else:
-            _save_npy(folder / rad_name, s.radiance, np.float32)
+            _save_npy(folder / rad_name, s.radiance, _sample_dtype(s.radiance))
         if s.depth is not None:
             if depth_name.endswith(".xz"):
                 if not np.all(np.isfinite(s.depth)):
@@ -176,7 +186,7 @@ def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
                 with atomic_path(folder / depth_name) as tmp:
                     Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=6))
             else:
-                _save_npy(folder / depth_name, s.depth, np.float32)
+                _save_npy(folder / depth_name, s.depth, _sample_dtype(s.depth))
     return write_slab_index(folder, slabs, check=False)
 
 
@@ -220,7 +230,7 @@ def load_slabs(folder, mmap: bool = True) -> list[LightSlab]:
                 if not path.is_file():
                     raise ValueError(f"{path}: missing slab array")
                 if path.name.endswith(".xz"):
-                    arrays.append(_load_xz(path).astype(np.float32))
+                    arrays.append(_load_xz(path))  # float16, as stored
                 else:
                     arrays.append(np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False))
             if arrays[0] is None:

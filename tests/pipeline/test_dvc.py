@@ -26,7 +26,7 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     params.update(scene="tiny")
     params["reference"]["spp"] = 4
     params["poses"]["method"] = "gt"  # six 128x96 views are too few for SfM; the stage wiring is what is tested
-    params["slab"].update(uv_res=4, st_res=24)
+    params["slab"].update(uv_res=4, st_per_pixel=0.5)
     params["nerf"].update(minutes=0.05)  # a few seconds of training: the wiring is what is tested
     (work / "params.yaml").write_text(yaml.safe_dump(params))
     bin_dir = Path(sys.executable).parent
@@ -61,7 +61,7 @@ def test_dvc_repro_runs_every_stage_and_is_then_up_to_date(tmp_path):
     assert plots.returncode == 0 and "curve.csv" in plots.stdout and "models.csv" in plots.stdout, plots.stderr
 
     # one parameter changed: only the stages downstream of it run again
-    params["slab"].update(st_res=20)
+    params["slab"].update(st_per_pixel=0.4)
     (work / "params.yaml").write_text(yaml.safe_dump(params))
     third = run("repro")
     assert third.returncode == 0, third.stderr + third.stdout

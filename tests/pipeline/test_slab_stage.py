@@ -131,3 +131,18 @@ def test_slab_study_table_and_plot(capture, tmp_path):
     mb = {r["st_res"]: float(r["slab_mb"]) for r in rows}
     assert mb["24"] > mb["16"]
     assert (out / "study.svg").read_text().startswith("<svg") and not (out / "scratch").exists()
+
+
+def test_slab_cli_refuses_a_slab_set_the_machine_cannot_hold(capture, tmp_path):
+    """An st resolution whose arrays exceed the memory available: exit 2, one stderr line naming
+    the layout field, before anything is allocated (no output folder, no partial one)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "huge"
+    run = subprocess.run([sys.executable, "-m", "pipeline", "slab", str(capture), "--out", str(out), "--st-res", "2000000",
+                          "--quiet"], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "st_res=2000000" in lines[0] and "memory" in lines[0], run.stderr
+    assert not out.exists() and not list(tmp_path.glob(".huge*"))

@@ -305,3 +305,38 @@ def test_compress_slabs_exact_on_few_distinct_tiles_and_error_accounting():
         assert st.rmse == pytest.approx(np.sqrt(np.mean((s.radiance.decode() - tex) ** 2.0)), rel=1e-5)
         rmse.append(st.rmse)
     assert rmse[1] < rmse[0]
+
+
+# ---------------------------------------------------------------------------- st sampling from the pixel footprint
+
+
+def test_st_density_closed_form():
+    """A camera at distance r tilted by a from the plane's normal within the (e_s, normal) plane:
+    a pixel covers r / f metres along e_t and r / (f cos a) along e_s."""
+    from recon.slab import st_density
+
+    r, f, a = 1.5, 800.0, np.radians(35.0)
+    eye = r * np.array([np.sin(a), 0.0, np.cos(a)])
+    dens = st_density(np.zeros(3), eye[None], [f], (np.array([1.0, 0, 0]), np.array([0, 1.0, 0])))
+    np.testing.assert_allclose(dens, [f * np.cos(a) / r, f / r], rtol=1e-12)
+    # the most head-on camera sets the density: a second, straight-on one raises e_s's to f / r
+    both = st_density(np.zeros(3), np.stack([eye, [0, 0, r]]), [f, f], (np.array([1.0, 0, 0]),))
+    np.testing.assert_allclose(both, [f / r], rtol=1e-12)
+
+
+@pytest.mark.parametrize("focal", [400.0, 1000.0])
+def test_st_resolution_follows_the_capture_pixel_footprint(focal):
+    """One slab facing one camera straight on at distance r: st counts are ceil(side x f / r x
+    st_per_pixel) per side, so they follow the capture's focal length (fails when st ignores the
+    footprint, e.g. a fixed st_res: same counts at both focal lengths); a fixed st_res overrides."""
+    r = 1.2
+    eyes = np.array([[0.0, 0.0, r]])
+    for per_pixel in (1.0, 0.5):
+        (g,) = fit_slabs(np.array([[0.0, 0, 1]]), BOUNDS, eyes, [0, 1.0, 0], uv_res=2, st_res=None,
+                         focal_px=focal, st_per_pixel=per_pixel)
+        ws, ht = g.st_size
+        assert g.shape[2:] == (int(np.ceil(per_pixel * ws * focal / r)), int(np.ceil(per_pixel * ht * focal / r)))
+    (fixed,) = fit_slabs(np.array([[0.0, 0, 1]]), BOUNDS, eyes, [0, 1.0, 0], uv_res=2, st_res=30, focal_px=focal)
+    assert max(fixed.shape[2:]) == 30
+    with pytest.raises(ValueError, match="focal"):
+        fit_slabs(np.array([[0.0, 0, 1]]), BOUNDS, eyes, [0, 1.0, 0], st_res=None)
