@@ -197,6 +197,37 @@ def _sobol(key, dim):
 
 
 @njit(inline="always", **_JIT)
+def _sobol2(key, dim0):
+    """(_sobol(key, dim0), _sobol(key, dim0 + 1)) of a 2-D group starting at dim0 (the pixel
+    jitter, a light point, a BSDF direction): the group's index shuffle is hashed and applied
+    once for both components."""
+    h_index = _mix64((key & _HI32) + np.uint64(dim0 + 1) * _GOLDEN)
+    h0 = _mix64(h_index ^ _M1)
+    h1 = _mix64(h_index ^ (np.uint64(2) * _M1))
+    j = _nested(key & _MASK32, h_index) ^ _nested(_U0, h_index)
+    v0 = _reverse32(j)
+    v1 = _U0
+    k = 0
+    while j != _U0:
+        if (j & _U1) != _U0:
+            v1 ^= _SOBOL_V1[k]
+        j >>= _U1
+        k += 1
+    x0 = _nested(v0, h0) ^ (h0 >> _U32)
+    x1 = _nested(v1, h1) ^ (h1 >> _U32)
+    return np.float64(x0) * _INV_2_32, np.float64(x1) * _INV_2_32
+
+
+@njit(inline="always", **_JIT)
+def _sample2(sampler, key, dim0):
+    """Dimensions dim0 and dim0 + 1 (a 2-D group under the Sobol sampler) of a path key:
+    equal to (_sample(sampler, key, dim0), _sample(sampler, key, dim0 + 1))."""
+    if sampler == SAMPLER_SOBOL:
+        return _sobol2(key, dim0)
+    return _uniform(key, dim0), _uniform(key, dim0 + 1)
+
+
+@njit(inline="always", **_JIT)
 def _sample(sampler, key, dim):
     """Dimension ``dim`` of a path key under ``sampler`` (SAMPLER_INDEPENDENT: the hash of
     render.sampling.uniform; SAMPLER_SOBOL: render.sobol.sobol_uniform)."""
@@ -253,8 +284,9 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
             key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
         keys[i] = key
         pix[i] = p
-        jx = _sample(sampler, key, 0) + (p % width)
-        jy = _sample(sampler, key, 1) + (p // width)
+        ux, uy = _sample2(sampler, key, 0)
+        jx = ux + (p % width)
+        jy = uy + (p // width)
         jit[i, 0] = jx
         jit[i, 1] = jy
         if pinhole:
@@ -469,7 +501,7 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
         # pick and point from one 2-D group (base + 1, base + 2): the pick's number, rescaled
         # within the picked light's CDF interval, is uniform again and becomes the point's first
         # coordinate, so each light's points keep the pair's stratification (pbrt's remapped u)
-        ua = _sample(cfg.sampler, key, base + 1)
+        ua, u2 = _sample2(cfg.sampler, key, base + 1)
         k = _pick(cdf, ua)
         lo = cdf[k - 1] if k > 0 else 0.0
         width = cdf[k] - lo
@@ -477,8 +509,7 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
         u1 = max(u1, 0.0)
     else:
         k = _pick(cdf, _sample(cfg.sampler, key, base))
-        u1 = _sample(cfg.sampler, key, base + 1)
-    u2 = _sample(cfg.sampler, key, base + 2)
+        u1, u2 = _sample2(cfg.sampler, key, base + 1)
     if k < n_area:
         ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
         ldelta = False
@@ -512,7 +543,7 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
 def _sample_cosine(sampler, key, base, nx, ny, nz):
     """Cosine-weighted direction about n (dimensions base + 4, base + 5; the polar warp of
     render.sampling.cosine_hemisphere): (wi (3), pdf, its cosine)."""
-    u4, u5 = _sample(sampler, key, base + 4), _sample(sampler, key, base + 5)
+    u4, u5 = _sample2(sampler, key, base + 4)
     r = math.sqrt(u4)
     phi = (2.0 * math.pi) * u5
     c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length

@@ -72,6 +72,30 @@ def test_first_dimensions_are_stratified_per_pixel(pixel):
         sample_camera_rays(f, f + 1, npix, npix, 0, seed_mix, pinhole_of(cam), False, k_out[s:s + 1], pix[s:s + 1],
                            o32[s:s + 1], d32[s:s + 1], jit[s:s + 1], SAMPLER_SOBOL)
     assert np.array_equal(k_out, keys[:n]) and np.array_equal(jit[:, 0] - pixel, u[:n, 0])
+    assert np.array_equal(jit[:, 1], u[:n, 1])
+
+
+def test_paired_draws_equal_single_draws():
+    """The kernels draw each 2-D group at once (path_kernels._sample2: the pixel jitter, a light
+    point, a BSDF direction; the group's index shuffle hashed once): the pair equals the two
+    single draws, bit for bit, under both samplers."""
+    from numba import njit
+
+    from render.integrators.path_kernels import SAMPLER_INDEPENDENT, _sample, _sample2
+
+    @njit
+    def pairs_and_singles(sampler, keys, dim0):
+        out = np.empty((len(keys), 4))
+        for i in range(len(keys)):
+            out[i, 0], out[i, 1] = _sample2(sampler, keys[i], dim0)
+            out[i, 2], out[i, 3] = _sample(sampler, keys[i], dim0), _sample(sampler, keys[i], dim0 + 1)
+        return out
+
+    keys = sobol.sobol_keys(4, np.arange(64) % 5, np.arange(64) * 7)
+    for sampler in (SAMPLER_SOBOL, SAMPLER_INDEPENDENT):
+        for dim0 in (0, 3, 6, 3 + 8 * 5, 6 + 8 * 5):
+            out = pairs_and_singles(sampler, keys, dim0)
+            assert np.array_equal(out[:, :2], out[:, 2:]), (sampler, dim0)
 
 
 def _area_light_probe(size: int):
