@@ -87,8 +87,10 @@ from ..bsdf import DIELECTRIC, LAMBERT, MIRROR, bsdf_eval, bsdf_pdf, bsdf_sample
 from ..camera import Camera
 from ..film import Film, RenderResult
 from ..lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
-from ..sampling import _GOLDEN, _mix64, INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world, uniform_block
-from .bdpt_kernels import N_FIELDS, N_STATE, BdptConfig, connect, extend, prefix_sums, queue_bound, start_camera, start_light, trace_batch
+from ..sampling import (_GOLDEN, _mix64, INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world,
+                        uniform_block)
+from .bdpt_kernels import (N_FIELDS, N_STATE, BdptConfig, connect, extend, prefix_sums, queue_bound, start_camera,
+                           start_light, trace_batch)
 from .path import kernel_scene_of, pinhole_of
 from .path_kernels import add_unoccluded
 from .prepared import PreparedScene, prepare

@@ -632,7 +632,8 @@ def connect(ks, cfg, cam, k0, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img
             obj = EI[k, i, 0]
             if not emits[obj] or (not cfg.caustics and (EF[k, i - 1] & F_CAUS) != 0):
                 continue
-            cos_e = E[k, i, _WO] * E[k, i, _NG] + E[k, i, _WO + 1] * E[k, i, _NG + 1] + E[k, i, _WO + 2] * E[k, i, _NG + 2]
+            cos_e = (E[k, i, _WO] * E[k, i, _NG] + E[k, i, _WO + 1] * E[k, i, _NG + 1]
+                     + E[k, i, _WO + 2] * E[k, i, _NG + 2])
             two = two_sided[obj]
             if not (two or cos_e > 0.0):
                 continue
@@ -674,7 +675,8 @@ def connect(ks, cfg, cam, k0, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img
                 C0 = E[k, i, _BETA] * E[k, i, _ALB] * L0 * s_
                 C1 = E[k, i, _BETA + 1] * E[k, i, _ALB + 1] * L1 * s_
                 C2 = E[k, i, _BETA + 2] * E[k, i, _ALB + 2] * L2 * s_
-                if not (math.isfinite(C0) and math.isfinite(C1) and math.isfinite(C2)) or not max(max(C0, C1), C2) > 0.0:
+                finite_c = math.isfinite(C0) and math.isfinite(C1) and math.isfinite(C2)
+                if not finite_c or not max(max(C0, C1), C2) > 0.0:
                     continue
                 finite = math.isfinite(dist)
                 dist_f = dist if finite else 1.0
@@ -704,7 +706,8 @@ def connect(ks, cfg, cam, k0, npc, keys_e, tgt, E, EF, EI, L, LF, LI, lkind, img
                     pt_rev = pdir * cos_p * (1.0 / d2 if finite else 1.0)
                     r1 = _ratio(pt_rev, E[k, i, _FWD], hexp)
                     r2 = _ratio(pdf_r * E[k, i, _CONV], E[k, i - 1, _FWD], hexp)
-                    tot = _eye_sum(E, EF, k, t, r1, r2) + _ratio(pdf_l * conv_q, fwd_q, hexp) * (1.0 if is_area else 0.0)
+                    light_side = _ratio(pdf_l * conv_q, fwd_q, hexp) * (1.0 if is_area else 0.0)  # s = 0 counts
+                    tot = _eye_sum(E, EF, k, t, r1, r2) + light_side
                     w = 1.0 / (1.0 + tot)
                     C0, C1, C2 = C0 * w, C1 * w, C2 * w
                 ngx, ngy, ngz = E[k, i, _NG], E[k, i, _NG + 1], E[k, i, _NG + 2]
