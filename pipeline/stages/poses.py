@@ -53,14 +53,15 @@ import hashlib
 import json
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, ViewOrder,
-                         estimate_charuco, estimate_colmap, intrinsics_error, score_cameras, turntable_self_check)
+                         estimate_charuco, estimate_colmap, intrinsics_error, projection_error, score_cameras,
+                         turntable_self_check)
 from render.camera import Camera
 from render.camera_io import write_blender_transforms_json, write_cameras_json, write_colmap_text
 
@@ -91,11 +92,48 @@ class QualityGates:
     max_azimuth_gap_deg: float = 90.0
 
 
+#: where COLMAP's intrinsics come from: the capture's (``known``), COLMAP's self-calibration
+#: (``self``: ColmapConfig.known_intrinsics False), or ChArUco boards through cv2.calibrateCamera
+#: (``charuco``, the lab's route: then held fixed)
+CALIBRATIONS = ("known", "self", "charuco")
+
+
 @dataclass(frozen=True)
 class PosesConfig:
+    """calibration: one of :data:`CALIBRATIONS` (colmap only); ``self`` must agree with
+    ``colmap.known_intrinsics`` being False."""
+
     colmap: ColmapConfig = field(default_factory=ColmapConfig)
     charuco: CharucoConfig = field(default_factory=CharucoConfig)
     gates: QualityGates = field(default_factory=QualityGates)
+    calibration: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.calibration:
+            object.__setattr__(self, "calibration", "known" if self.colmap.known_intrinsics else "self")
+        if self.calibration not in CALIBRATIONS:
+            raise ValueError(f"--calibration must be one of {', '.join(CALIBRATIONS)}, got {self.calibration!r}")
+        if (self.calibration == "self") == self.colmap.known_intrinsics:
+            raise ValueError("calibration 'self' and only it self-calibrates in COLMAP (colmap.known_intrinsics False)")
+
+
+def _charuco_calibration(cap: Capture, cfg: CharucoConfig, metrics: dict):
+    """cv2.calibrateCamera over every view's ChArUco corners (:func:`recon.poses.calibrate_intrinsics`):
+    the intrinsics (k1 k2 p1 p2, k3 fixed at 0) and a dict of the calibration's figures. A capture
+    without boards in at least 3 views is a PoseFailure (the calibration the user asked for
+    cannot be made)."""
+    if not cap.targets:
+        raise BadInput(f"{cap.folder / 'targets.json'}: no calibration target in the capture (needed by --calibration charuco)")
+    imgs = {n: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for n, p in cap.images.items()}
+    t0 = time.perf_counter()
+    try:
+        res = estimate_charuco(imgs, cap.targets, None, replace(cfg, calibrate=True, distortion=True))
+    except BoardNotFound as exc:
+        raise PoseFailure(f"ChArUco calibration: {exc}", metrics) from None
+    except ValueError as exc:  # malformed board definition
+        raise BadInput(f"{cap.folder / 'targets.json'}: {exc}") from None
+    return res.intrinsics, {"calibration_views": len(res.cameras), "calibration_rms_px": res.calibration_rms_px,
+                            "calibration_time_s": round(time.perf_counter() - t0, 3)}
 
 
 @dataclass
@@ -255,11 +293,16 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
     elif method == "colmap":
         cfg = config.colmap
         metrics.update(known_intrinsics=cfg.known_intrinsics, image_scale=cfg.image_scale,
-                       max_features=cfg.max_features)
+                       max_features=cfg.max_features, calibration=config.calibration)
         if workdir is None:
             raise ValueError("the colmap method needs a work folder")
+        k_given = k_true
+        if config.calibration == "charuco":  # the lab's route: the board's calibration, held fixed
+            k_given, board = _charuco_calibration(cap, config.charuco, metrics)
+            metrics.update(_prefixed("charuco_", board))
+            cfg = replace(cfg, known_intrinsics=True)
         try:
-            res = estimate_colmap(cap.images, k_true, Path(workdir), cfg, cap.order)
+            res = estimate_colmap(cap.images, k_given, Path(workdir), cfg, cap.order)
         except ReconstructionError as exc:
             metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
             raise PoseFailure(str(exc), metrics) from None
@@ -268,7 +311,9 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
         cams, rec = res.cameras, res.reconstruction
         extra = {"reprojection_error_px": res.reprojection_error_px, "points": int(len(res.points)),
                  "models": res.num_models, "mean_track_length": res.mean_track_length, "matcher": res.matcher,
-                 "mapper": res.mapper, "pairs": res.pairs,
+                 "mapper": res.mapper, "pairs": res.pairs, "camera_model": res.camera_model,
+                 "camera_model_note": res.lens_note, "lens_steps": res.lens_steps,
+                 "observed_radius_rel": res.observed_radius_rel, "rational_refit_px": res.rational_refit_px,
                  **{f"{step}_time_s": t for step, t in res.times_s.items()}}
     else:
         cfg = config.charuco
@@ -302,6 +347,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
         raise PoseFailure(f"cannot align the estimate to the ground truth: {exc}", metrics) from None
     metrics.update(m)
     metrics.update(intrinsics_error(scored[0], truth[scored[0].name]))
+    metrics.update(projection_error(scored, truth, radius_rel=metrics.get("observed_radius_rel")))
     check = turntable_self_check(scored, gates.max_azimuth_gap_deg)
     metrics.update(self_check_folded=check["folded"], self_check_reason=check["reason"],
                    max_azimuth_gap_deg=check["max_azimuth_gap_deg"], duplicate_pairs=check["duplicate_pairs"])

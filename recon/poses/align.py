@@ -19,7 +19,8 @@ import numpy as np
 from render.camera import Camera
 
 __all__ = ["Similarity", "umeyama", "apply_similarity", "rotation_angles_deg", "scene_scale",
-           "score_cameras", "intrinsics_error", "turntable_self_check"]
+           "score_cameras", "intrinsics_error", "projection_error", "pixel_grid", "subject_point",
+           "turntable_self_check"]
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,72 @@ def intrinsics_error(est: Camera, truth: Camera) -> dict:
     return {"focal_rel": float(max(abs(a.fx - b.fx) / b.fx, abs(a.fy - b.fy) / b.fy)),
             "principal_point_px": float(np.hypot(a.cx - b.cx, a.cy - b.cy)),
             "distortion_abs_max": float(np.max(np.abs(np.subtract(a.dist, b.dist))))}
+
+
+def pixel_grid(width: int, height: int, step: float = 16.0) -> np.ndarray:
+    """(N, 2) float64 continuous pixel positions every ``step`` pixels across the whole image,
+    its border included (the image's outer corners (0, 0) ... (width, height) are points of it)."""
+    xs = np.linspace(0.0, width, max(int(np.ceil(width / step)), 1) + 1)
+    ys = np.linspace(0.0, height, max(int(np.ceil(height / step)), 1) + 1)
+    jj, ii = np.meshgrid(xs, ys)
+    return np.stack([jj.ravel(), ii.ravel()], axis=1)
+
+
+def subject_point(truth: Sequence[Camera]) -> np.ndarray:
+    """(3,) float64 world point nearest (least squares) every camera's optical axis: the point a
+    turntable capture looks at, the subject's centre."""
+    C = np.array([c.center for c in truth])
+    d = np.array([c.cam_to_world[:3, 2] for c in truth])
+    P = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    return np.linalg.lstsq(P.sum(0), np.einsum("nij,nj->i", P, C), rcond=None)[0]
+
+
+def projection_error(estimated: Sequence[Camera], truth: Mapping[str, Camera], step: float = 16.0,
+                     radius_rel: float | None = None) -> dict:
+    """How far the estimated cameras project from the true ones, distortion included.
+
+    For each estimated view (already in the ground-truth frame, e.g. :func:`score_cameras`'s
+    output) the pixels of :func:`pixel_grid` are cast through the TRUE camera to points at the
+    subject's depth (the z of :func:`subject_point` in that view) and projected by the ESTIMATED
+    camera; the distance to the pixel they came from is the error (px). This is the whole camera:
+    pose, focal, principal point and lens. ``lens_*`` is the lens alone: the same rays projected
+    with the estimated intrinsics from the true pose (depth-independent), one figure per distinct
+    estimated intrinsics. With ``radius_rel`` (distance from the image centre over the half-diagonal)
+    the ``*_covered`` figures repeat the maxima over the grid points inside that radius.
+
+    Returns floats: ``projection_error_px_max`` (max over views and grid), ``..._view_max_mean`` (mean
+    over views of each view's max), ``..._mean`` (mean over views and grid), ``lens_projection_error_px_max``
+    / ``..._mean``, and the ``_covered`` maxima when ``radius_rel`` is given.
+    """
+    est, gt = _pair(estimated, truth)
+    target = subject_point(list(truth.values()))
+    k0 = gt[0].intrinsics
+    grid = pixel_grid(k0.width, k0.height, step)
+    rel = np.linalg.norm(grid - [k0.width / 2, k0.height / 2], axis=1) / (0.5 * np.hypot(k0.width, k0.height))
+    inside = rel <= radius_rel if radius_rel is not None else None
+    view_max, view_mean, view_cov, lens = [], [], [], {}
+    for e, t in zip(est, gt):
+        origins, dirs = t.pixel_rays(grid)
+        z_subject = (t.world_to_cam[:3, :3] @ target + t.world_to_cam[:3, 3])[2]
+        z_dirs = dirs @ t.cam_to_world[:3, 2]
+        points = origins + dirs * (z_subject / z_dirs)[:, None]
+        uv, _ = e.project(points)
+        err = np.linalg.norm(uv - grid, axis=1)
+        view_max.append(err.max())
+        view_mean.append(err.mean())
+        if inside is not None:
+            view_cov.append(err[inside].max())
+        if e.intrinsics not in lens:
+            uv_lens, _ = Camera(e.intrinsics, t.cam_to_world, t.name).project(points)
+            lens[e.intrinsics] = np.linalg.norm(uv_lens - grid, axis=1)
+    lens_err = np.concatenate(list(lens.values()))
+    out = {"projection_error_px_max": float(max(view_max)), "projection_error_px_view_max_mean": float(np.mean(view_max)),
+           "projection_error_px_mean": float(np.mean(view_mean)), "lens_projection_error_px_max": float(lens_err.max()),
+           "lens_projection_error_px_mean": float(lens_err.mean())}
+    if inside is not None:
+        out["projection_error_px_max_covered"] = float(max(view_cov))
+        out["lens_projection_error_px_max_covered"] = float(max(v[inside].max() for v in lens.values()))
+    return out
 
 
 def _pair(estimated: Sequence[Camera], truth: Mapping[str, Camera]) -> tuple[list[Camera], list[Camera]]:

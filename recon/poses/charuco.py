@@ -70,13 +70,15 @@ class CharucoResult:
     """cameras: one per view that sees a board (camera-to-world, OpenCV axes, world frame),
     in input order; not_visible: names of views without a usable board; corners: name -> number
     of corners used; reprojection_error_px: mean corner residual over all used corners;
-    intrinsics: the calibration used (known or estimated, +0.5 convention)."""
+    intrinsics: the calibration used (known or estimated, +0.5 convention);
+    calibration_rms_px: cv2.calibrateCamera's RMS residual (0 with known intrinsics)."""
 
     cameras: list[Camera]
     not_visible: list[str]
     corners: dict[str, int]
     reprojection_error_px: float
     intrinsics: Intrinsics
+    calibration_rms_px: float = 0.0
 
 
 def make_board(board: Mapping) -> "cv2.aruco.CharucoBoard":
@@ -212,9 +214,10 @@ def estimate_charuco(images: Mapping[str, np.ndarray], targets: Mapping[str, Map
     not_visible = [n for n in names if n not in detections]
     if not detections:
         raise BoardNotFound(f"no calibration board detected in any of {len(names)} views")
+    rms = 0.0
     if config.calibrate:
         planar = [max(found, key=lambda f: len(f[0]))[:2] for found in detections.values()]
-        intrinsics, _ = calibrate_intrinsics([p for p in planar if len(p[0]) >= config.min_corners], w, h,
+        intrinsics, rms = calibrate_intrinsics([p for p in planar if len(p[0]) >= config.min_corners], w, h,
                                              config.distortion)
     cameras, corners, residuals = [], {}, []
     for n in names:
@@ -234,4 +237,4 @@ def estimate_charuco(images: Mapping[str, np.ndarray], targets: Mapping[str, Map
         raise BoardNotFound(f"no view gave a board pose ({len(names)} views)")
     order = {n: i for i, n in enumerate(names)}
     not_visible.sort(key=order.get)
-    return CharucoResult(cameras, not_visible, corners, float(np.concatenate(residuals).mean()), intrinsics)
+    return CharucoResult(cameras, not_visible, corners, float(np.concatenate(residuals).mean()), intrinsics, rms)

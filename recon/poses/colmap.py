@@ -2,12 +2,16 @@
 
 Two modes (:class:`ColmapConfig.known_intrinsics`):
 
-* known intrinsics: one PINHOLE camera with the given ``fx fy cx cy``; bundle adjustment keeps
-  focal length and principal point fixed, only poses and points move;
-* self-calibration: one SIMPLE_RADIAL camera (``f cx cy k1``, COLMAP's default model) started
-  from COLMAP's default focal guess (1.2 x the larger image side), focal and k1 refined; the
-  principal point stays at the image centre unless ``refine_principal_point``. (An OPENCV
-  camera, 4 distortion terms free, registered only 2 of 56 default-scene views.)
+* known intrinsics: one camera with the given calibration (PINHOLE ``fx fy cx cy``, OPENCV /
+  FULL_OPENCV when it has distortion); bundle adjustment keeps it fixed, only poses and points move;
+* self-calibration (:func:`calibrate_lens`): the mapper runs on one SIMPLE_RADIAL camera
+  (``f cx cy k1``) from COLMAP's focal guess (1.2 x the larger image side), focal and k1 refined,
+  the principal point at the centre; then the principal point is freed and the lens model
+  climbs SIMPLE_RADIAL -> RADIAL -> OPENCV (-> FULL_OPENCV when asked), one model at a time,
+  each bundle adjusted from the previous solution: the order COLMAP users refine in (focal,
+  then k1, then the rest). ``auto`` keeps the richest model the views constrain.
+
+Why an OPENCV camera from the start registered 2 of 56 views (issue 21): see :data:`OPENCV_FROM_START`.
 
 COLMAP and we put pixel centres at +0.5, so intrinsics pass to and from COLMAP unchanged.
 Images can be resized by ``image_scale`` first (intrinsics scaled with them); the returned
@@ -45,7 +49,12 @@ class ReconstructionError(ValueError):
 class ColmapConfig:
     """Options that matter for accuracy and time; the defaults give the figures in the report.
 
-    known_intrinsics: PINHOLE with fixed calibration (True) or self-calibrated SIMPLE_RADIAL (False).
+    known_intrinsics: the given calibration held fixed (True: PINHOLE, or OPENCV / FULL_OPENCV
+        when it has distortion) or self-calibration (False; see ``camera_model``).
+    camera_model: self-calibration's lens model: ``auto`` or one of :data:`CAMERA_MODELS`. The
+        mapper runs on SIMPLE_RADIAL (focal and k1 refined); :func:`calibrate_lens` then frees the
+        principal point and climbs one model at a time to the one asked for, or with ``auto`` to
+        the richest the views constrain (a likelihood-ratio test per step).
     image_scale: resize factor applied before feature extraction (1 = capture resolution).
     max_features: SIFT features per image.
     matcher: ``exhaustive`` (every pair), ``capture_order`` (the shooting order's pairs,
@@ -102,7 +111,7 @@ class ColmapConfig:
     link_window: int = 1
     mapper: Literal["auto", "incremental", "global"] = "auto"
     global_min_images: int = 150
-    refine_principal_point: bool = False
+    camera_model: str = "auto"
     final_ba_iterations: int = 100
     seed: int = 0
     num_threads: int = -1
@@ -118,6 +127,8 @@ class ColmapConfig:
             raise ValueError(f"mapper must be auto, incremental or global, got {self.mapper!r}")
         if self.sequential_overlap < 1 or self.link_window < 0:
             raise ValueError("sequential_overlap must be >= 1 and link_window >= 0")
+        if self.camera_model != "auto" and self.camera_model not in CAMERA_MODELS:
+            raise ValueError(f"camera_model must be auto, {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
 
 
 @dataclass
@@ -125,6 +136,11 @@ class ColmapResult:
     """Registered cameras (input-resolution intrinsics, COLMAP's frame, camera-to-world OpenCV
     axes, named by image stem), the names COLMAP could not register, and model statistics.
 
+    camera_model: the COLMAP model estimated (PINHOLE / OPENCV / FULL_OPENCV for known
+    intrinsics); lens_steps / lens_note: :func:`calibrate_lens`'s per-model fits and note
+    (self-calibration only); rational_refit_px: see :func:`rational_refit_px` (input pixels);
+    observed_radius_rel: the 99th percentile of the observed keypoints' distance from the image
+    centre over the half-diagonal (1 = the corners): where the lens is measured, not extrapolated.
     points: (P, 3) float64 sparse points in COLMAP's frame. reprojection_error_px is the mean
     over all observations, in input-resolution pixels. matcher/mapper: what ran (``auto``
     resolved); pairs: image pairs matched; times_s: wall seconds of ``extract``, ``match``,
@@ -142,6 +158,11 @@ class ColmapResult:
     mapper: str = ""
     pairs: int = 0
     times_s: dict = field(default_factory=dict)
+    camera_model: str = ""
+    lens_steps: list = field(default_factory=list)
+    lens_note: str = ""
+    rational_refit_px: float = 0.0
+    observed_radius_rel: float = 0.0
 
 
 def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path) -> list[str]:
@@ -172,21 +193,86 @@ def _image_size(path: Path) -> tuple[int, int]:
 
 
 def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intrinsics:
-    """A pycolmap PINHOLE/SIMPLE_RADIAL/OPENCV camera -> our Intrinsics at the input resolution."""
+    """A pycolmap PINHOLE / SIMPLE_RADIAL / RADIAL / OPENCV / FULL_OPENCV camera -> our Intrinsics
+    at the input resolution. FULL_OPENCV's rational denominator (k4..k6) has no place in our
+    five-term Brown lens: it is refitted by :func:`_brown_from_rational` (its deviation is
+    reported by :func:`rational_refit_px`)."""
     p = np.asarray(cam.params, dtype=np.float64)
     if cam.model_name == "SIMPLE_RADIAL":
         f, cx, cy, k1 = p
         fx = fy = f
         dist = (k1, 0.0, 0.0, 0.0, 0.0)
+    elif cam.model_name == "RADIAL":
+        f, cx, cy, k1, k2 = p
+        fx = fy = f
+        dist = (k1, k2, 0.0, 0.0, 0.0)
     elif cam.model_name == "PINHOLE":
         fx, fy, cx, cy = p
         dist = (0.0,) * 5
     elif cam.model_name == "OPENCV":
         fx, fy, cx, cy, k1, k2, p1, p2 = p
         dist = (k1, k2, p1, p2, 0.0)
-    else:  # pragma: no cover - we only create these two models
+    elif cam.model_name == "FULL_OPENCV":
+        fx, fy, cx, cy = p[:4]
+        dist = _brown_from_rational(p, width / scale_back, height / scale_back)[0]
+    else:  # pragma: no cover - we only create these models
         raise ReconstructionError(f"unexpected COLMAP camera model {cam.model_name}")
     return Intrinsics(width, height, fx * scale_back, fy * scale_back, cx * scale_back, cy * scale_back, dist)
+
+
+def _brown_from_rational(p: np.ndarray, width: float, height: float) -> tuple[tuple, float]:
+    """FULL_OPENCV params ``fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6`` -> the five-term Brown lens
+    ``(k1, k2, p1, p2, k3)`` nearest it over the image (linear least squares on a 33 x 25 grid of
+    normalized points spanning the image), and the largest distance between the two projections
+    there in pixels. Exact (0 px) when k4 = k5 = k6 = 0."""
+    fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6 = (float(v) for v in p)
+    if k4 == k5 == k6 == 0.0:
+        return (k1, k2, p1, p2, k3), 0.0
+    u, v = np.meshgrid(np.linspace(0, width, 33), np.linspace(0, height, 25))
+    x, y = ((u - cx) / fx).ravel(), ((v - cy) / fy).ravel()  # undistorted directions near the image
+    r2 = x * x + y * y
+    radial = (1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3) / (1 + k4 * r2 + k5 * r2 ** 2 + k6 * r2 ** 3)
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    # Brown: xd - x = x (k1 r2 + k2 r4 + k3 r6) + 2 p1 x y + p2 (r2 + 2 x^2), likewise y: linear in the terms
+    A = np.concatenate([np.stack([x * r2, x * r2 ** 2, 2 * x * y, r2 + 2 * x * x, x * r2 ** 3], 1),
+                        np.stack([y * r2, y * r2 ** 2, r2 + 2 * y * y, 2 * x * y, y * r2 ** 3], 1)]) * [fx, fx, fx, fx, fx]
+    A[len(x):] *= fy / fx
+    b = np.concatenate([(xd - x) * fx, (yd - y) * fy])
+    sol = np.linalg.lstsq(A, b, rcond=None)[0]
+    dev = np.abs(A @ sol - b).reshape(2, -1)
+    return (float(sol[0]), float(sol[1]), float(sol[2]), float(sol[3]), float(sol[4])), float(np.hypot(*dev).max())
+
+
+def rational_refit_px(cam) -> float:
+    """How far (px, largest over the image) the Brown lens written for a FULL_OPENCV camera
+    projects from the camera itself (0 for every other model)."""
+    if cam.model_name != "FULL_OPENCV":
+        return 0.0
+    return _brown_from_rational(np.asarray(cam.params, dtype=np.float64), cam.width, cam.height)[1]
+
+
+def _fixed_camera(k: Intrinsics) -> tuple[str, tuple[float, ...]]:
+    """COLMAP model and params of a known calibration: PINHOLE without distortion, OPENCV
+    (k1 k2 p1 p2) with it, FULL_OPENCV (k4..k6 = 0) when k3 != 0."""
+    k1, k2, p1, p2, k3 = k.dist
+    base = (k.fx, k.fy, k.cx, k.cy)
+    if not k.has_distortion:
+        return "PINHOLE", base
+    if k3 == 0.0:
+        return "OPENCV", base + (k1, k2, p1, p2)
+    return "FULL_OPENCV", base + (k1, k2, p1, p2, k3, 0.0, 0.0, 0.0)
+
+
+def _observed_radius(rec) -> float:
+    """99th percentile of the triangulated keypoints' distance from the image centre, over the
+    half-diagonal (1 at the corners)."""
+    cam = next(iter(rec.cameras.values()))
+    xy = _observations(rec)[2]
+    if not len(xy):
+        return 0.0
+    r = np.linalg.norm(xy - [cam.width / 2, cam.height / 2], axis=1) / (0.5 * np.hypot(cam.width, cam.height))
+    return float(np.percentile(r, 99))
 
 
 def _diagnose(db: Path) -> str:
@@ -285,9 +371,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
 
     reader = pycolmap.ImageReaderOptions()
     if config.known_intrinsics:
-        k = intrinsics.scaled(sw / width)
-        reader.camera_model = "PINHOLE"
-        reader.camera_params = ",".join(repr(float(v)) for v in (k.fx, k.fy, k.cx, k.cy))
+        reader.camera_model, params = _fixed_camera(intrinsics.scaled(sw / width))
+        reader.camera_params = ",".join(repr(float(v)) for v in params)
     else:
         reader.camera_model = "SIMPLE_RADIAL"
     pycolmap.set_random_seed(config.seed)
@@ -356,7 +441,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         opts.min_model_size = min(10, len(names))
         opts.ba_refine_focal_length = not fixed
         opts.ba_refine_extra_params = not fixed
-        opts.ba_refine_principal_point = (not fixed) and config.refine_principal_point
+        opts.ba_refine_principal_point = False  # freed after mapping (calibrate_lens)
         opts.mapper.abs_pose_refine_focal_length = not fixed
         opts.mapper.abs_pose_refine_extra_params = not fixed
         models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
@@ -365,19 +450,12 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         raise ReconstructionError(f"COLMAP built no model from {len(names)} images: {_diagnose(db)}")
     rec = max(models.values(), key=lambda m: m.num_reg_images())
 
-    if config.final_ba_iterations > 0:
-        ba = pycolmap.BundleAdjustmentOptions()
-        ba.refine_focal_length = not fixed
-        ba.refine_extra_params = not fixed
-        ba.refine_principal_point = (not fixed) and config.refine_principal_point
-        ba.print_summary = False
-        ba.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
-        so = ba.ceres.solver_options
-        so.max_num_iterations = config.final_ba_iterations
-        so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
-        so.num_threads = 1
-        with _info_lines_dropped(workdir / "ba.log"):
-            pycolmap.bundle_adjustment(rec, ba)
+    lens_steps, lens_note = [], ""
+    if not fixed:
+        rec, lens_steps, lens_note = calibrate_lens(rec, workdir, config.camera_model,
+                                                    max(config.final_ba_iterations, 1))
+    elif config.final_ba_iterations > 0:
+        _bundle_adjust(rec, workdir, config.final_ba_iterations, False, False, False)
 
     times["map"] = time.perf_counter() - t0
     cameras, registered = [], set()
@@ -400,7 +478,10 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
                         reprojection_error_px=err if np.isfinite(err) else 0.0, points=points,
                         num_models=len(models), mean_track_length=float(rec.compute_mean_track_length())
                         if len(points) else 0.0, reconstruction=rec, matcher=matcher, mapper=mapper,
-                        pairs=n_pairs, times_s={k: round(v, 3) for k, v in times.items()})
+                        pairs=n_pairs, times_s={k: round(v, 3) for k, v in times.items()},
+                        camera_model=next(iter(rec.cameras.values())).model_name, lens_steps=lens_steps,
+                        lens_note=lens_note, rational_refit_px=rational_refit_px(next(iter(rec.cameras.values())))
+                        * scale_back, observed_radius_rel=_observed_radius(rec))
 
 
 @contextmanager
@@ -443,7 +524,222 @@ def _global_options(config: ColmapConfig, n_images: int):
     ba = m.bundle_adjustment
     ba.refine_focal_length = not fixed
     ba.refine_extra_params = not fixed
-    ba.refine_principal_point = (not fixed) and config.refine_principal_point
+    ba.refine_principal_point = False  # freed after mapping (calibrate_lens)
     ba.ceres.use_gpu = False
     ba.ceres.solver_options.num_threads = 1
     return opts
+
+
+# --------------------------------------------------------------------------- self-calibration
+
+#: the camera models self-calibration climbs through, simplest first (COLMAP's names and parameter
+#: orders: SIMPLE_RADIAL f cx cy k1; RADIAL f cx cy k1 k2; OPENCV fx fy cx cy k1 k2 p1 p2;
+#: FULL_OPENCV adds k3 k4 k5 k6, the rational model's numerator k3 and denominator k4..k6)
+CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
+#: Why an OPENCV camera from the start failed (issue 21: "registered 2 of 56 views"), measured on
+#: scenes/real_lens.yaml (56 views, 1280x960, the stage's matches; /tmp scripts, load ~17): the
+#: incremental mapper with OPENCV from COLMAP's focal guess (1.2 x 1280 = 1536 px, 16% above the
+#: true 1319) and all four distortion terms free from the first bundle adjustment built two models
+#: it gave up on, of 2 and 10 images, before a third reached 56/56, in 1338 s against 251 s for
+#: SIMPLE_RADIAL on the same matches; that OPENCV camera ended with k2 = -0.32 (true 0.03) and the
+#: principal point still pinned. Focal, k1, k2 and the tangential terms trade against each other
+#: while few views are registered, so early models drift and stall (the issue's 2 views match the
+#: first abandoned model; that earlier run itself was not repeated). Hence the order here: map with SIMPLE_RADIAL (focal and k1), then free the
+#: principal point, then one model at a time (calibrate_lens).
+OPENCV_FROM_START = "map SIMPLE_RADIAL, then climb (calibrate_lens)"
+#: the richest model ``auto`` tries: FULL_OPENCV's rational denominator k4..k6 trades against
+#: k1..k3 wherever the features do not reach the image's rim (on a turntable they stay near the
+#: centre), so its fits extrapolate wildly, and cameras.json's five-term Brown lens cannot hold
+#: it (it is written as its nearest Brown lens, :func:`rational_refit_px`); it runs only when asked
+AUTO_TOP_MODEL = "OPENCV"
+#: parameters each model estimates (the principal point counted, as it is refined)
+MODEL_PARAMS = {"SIMPLE_RADIAL": 4, "RADIAL": 5, "OPENCV": 8, "FULL_OPENCV": 12}
+
+
+def _promote(camera, model: str) -> None:
+    """Turn a pycolmap camera into the next richer ``model`` in place, the new terms at 0 (the
+    projection is unchanged): SIMPLE_RADIAL -> RADIAL -> OPENCV -> FULL_OPENCV."""
+    import pycolmap
+
+    p = [float(v) for v in camera.params]
+    current = camera.model_name
+    if (current, model) == ("SIMPLE_RADIAL", "RADIAL"):
+        new = p + [0.0]
+    elif (current, model) == ("RADIAL", "OPENCV"):
+        f, cx, cy, k1, k2 = p
+        new = [f, f, cx, cy, k1, k2, 0.0, 0.0]
+    elif (current, model) == ("OPENCV", "FULL_OPENCV"):
+        new = p + [0.0] * 4
+    else:
+        raise ValueError(f"cannot promote a {current} camera to {model}")
+    camera.model = getattr(pycolmap.CameraModelId, model)
+    camera.params = new
+
+
+def _observations(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every observation of a triangulated point: (M,) image ids, (M,) point ids, (M, 2) pixels,
+    (M,) the keypoint's index in its image."""
+    image_ids, point_ids, xy, index = [], [], [], []
+    for image_id, img in rec.images.items():
+        if not img.has_pose:
+            continue
+        for i, p in enumerate(img.points2D):
+            if p.has_point3D():
+                image_ids.append(image_id)
+                point_ids.append(p.point3D_id)
+                xy.append(p.xy)
+                index.append(i)
+    return (np.asarray(image_ids), np.asarray(point_ids), np.asarray(xy, dtype=np.float64).reshape(-1, 2),
+            np.asarray(index))
+
+
+def _residuals(rec, obs) -> np.ndarray:
+    """(M, 2) reprojection residuals (pixels at the working scale) of the observations ``obs``
+    (:func:`_observations`) in ``rec``; an observation whose point is gone or behind its camera
+    gets a residual of 1e3 px, a deliberate large value (it no longer fits)."""
+    image_ids, point_ids, xy = obs[:3]
+    res = np.full(xy.shape, 1e3)
+    for image_id in np.unique(image_ids):
+        img = rec.images[int(image_id)]
+        sel = np.nonzero(image_ids == image_id)[0]
+        alive = [i for i in sel if rec.exists_point3D(int(point_ids[i]))]
+        if not alive:
+            continue
+        X = np.array([rec.points3D[int(point_ids[i])].xyz for i in alive])
+        pose = np.asarray(img.cam_from_world().matrix(), dtype=np.float64)
+        Xc = X @ pose[:, :3].T + pose[:, 3]
+        front = Xc[:, 2] > 1e-9
+        uv = np.asarray(img.camera.img_from_cam(np.where(front[:, None], Xc, [0.0, 0.0, 1.0])), dtype=np.float64)
+        ok = front & np.all(np.isfinite(uv), axis=1)
+        rows = np.asarray(alive)[ok]
+        res[rows] = uv[ok] - xy[rows]
+    return res
+
+
+def _bundle_adjust(rec, workdir: Path, iterations: int, refine_focal: bool, refine_principal_point: bool,
+                   refine_extra: bool) -> None:
+    """One global bundle adjustment of ``rec`` in place: Cauchy loss, tight tolerances, one
+    thread (scheduling-independent); glog's INFO lines dropped."""
+    import pycolmap
+
+    ba = pycolmap.BundleAdjustmentOptions()
+    ba.refine_focal_length = refine_focal
+    ba.refine_extra_params = refine_extra
+    ba.refine_principal_point = refine_principal_point
+    ba.print_summary = False
+    ba.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    so = ba.ceres.solver_options
+    so.max_num_iterations = iterations
+    so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
+    so.num_threads = 1
+    with _info_lines_dropped(workdir / "ba.log"):
+        pycolmap.bundle_adjustment(rec, ba)
+
+
+#: a richer camera model is kept when it lowers the sum of squared residuals by more than the
+#: chi-square quantile of its extra parameters at this significance (residual variance from the
+#: richer model); see :func:`calibrate_lens`
+MODEL_TEST_ALPHA = 1e-3
+#: inlier residual bound (working-scale px) for the model test: robust BA leaves outliers that
+#: would dominate a sum of squares
+MODEL_TEST_INLIER_PX = 2.0
+#: fraction of the observations, the farthest from the image centre, held out to test whether a
+#: model's lens extrapolates beyond the features it was fitted to
+HOLDOUT_FRACTION = 0.1
+
+
+def _radius(obs, rec) -> np.ndarray:
+    cam = next(iter(rec.cameras.values()))
+    return np.linalg.norm(obs[2] - [cam.width / 2, cam.height / 2], axis=1)
+
+
+def _fit_ladder(rec, workdir: Path, top: str, iterations: int) -> list[tuple[str, object]]:
+    """[(model, reconstruction)] from SIMPLE_RADIAL with its principal point freed up to ``top``,
+    each model bundle adjusted from the previous one's solution (``rec`` is not changed)."""
+    import pycolmap
+
+    cur = pycolmap.Reconstruction(rec)
+    _bundle_adjust(cur, workdir, iterations, True, True, True)
+    fits = [("SIMPLE_RADIAL", cur)]
+    for name in CAMERA_MODELS[1:CAMERA_MODELS.index(top) + 1]:
+        nxt = pycolmap.Reconstruction(fits[-1][1])
+        _promote(next(iter(nxt.cameras.values())), name)
+        _bundle_adjust(nxt, workdir, iterations, True, True, True)
+        fits.append((name, nxt))
+    return fits
+
+
+def calibrate_lens(rec, workdir: Path, model: str, iterations: int = 100) -> tuple[object, list[dict], str]:
+    """Self-calibrate the lens of a mapped reconstruction's one camera, COLMAP users' order:
+    (the mapper refined the focal length and k1 of a SIMPLE_RADIAL camera), then the principal
+    point is freed, then one model at a time is added (RADIAL's k2, OPENCV's fx != fy and
+    tangential p1 p2, FULL_OPENCV's k3..k6), each started from the previous model's solution with
+    its new terms at 0 and bundle adjusted with every intrinsic free.
+
+    rec: pycolmap.Reconstruction with one SIMPLE_RADIAL camera (not changed). model: a name of
+    :data:`CAMERA_MODELS`, or ``auto``: climb the ladder up to :data:`AUTO_TOP_MODEL` and keep a
+    richer model only when both (a) it significantly lowers the squared residuals of the same
+    observations (likelihood-ratio test: the drop over the richer model's residual variance
+    exceeds the chi-square quantile at :data:`MODEL_TEST_ALPHA` of the added parameters; inliers
+    within :data:`MODEL_TEST_INLIER_PX` of the simpler model) and (b) refitted without the
+    outermost :data:`HOLDOUT_FRACTION` of the observations, it predicts those held-out ones better
+    than the simpler model does: a term that only bends the lens where no feature was seen
+    fails (b).
+    Returns ``(reconstruction, steps, note)``: the chosen model's reconstruction, one dict per
+    model tried (model, rms_px, holdout_rms_px, observations, chosen) and a one-line note naming
+    the terms the views could not constrain (empty when every tried term was kept).
+    """
+    import pycolmap
+    from scipy.stats import chi2
+
+    if model != "auto" and model not in CAMERA_MODELS:
+        raise ValueError(f"camera_model must be auto or one of {', '.join(CAMERA_MODELS)}, got {model!r}")
+    if len(rec.cameras) != 1 or next(iter(rec.cameras.values())).model_name != "SIMPLE_RADIAL":
+        raise ValueError("calibrate_lens needs one SIMPLE_RADIAL camera")
+    top = AUTO_TOP_MODEL if model == "auto" else model
+    fits = _fit_ladder(rec, workdir, top, iterations)
+    obs = _observations(fits[0][1])
+    residuals = [_residuals(r, obs) for _, r in fits]
+    inlier = np.linalg.norm(residuals[0], axis=1) <= MODEL_TEST_INLIER_PX
+    sse = [float(np.sum(r[inlier] ** 2)) for r in residuals]
+    n = 2 * int(inlier.sum())
+    holdout_sse = [np.nan] * len(fits)
+    if model == "auto" and len(fits) > 1:
+        # the same rim observations deleted from the mapped model, the ladder refitted, the rim predicted
+        radius = _radius(obs, rec)
+        rim = radius > np.quantile(radius, 1 - HOLDOUT_FRACTION)
+        inner = pycolmap.Reconstruction(rec)
+        for image_id, index in zip(obs[0][rim], obs[3][rim]):
+            if inner.images[int(image_id)].points2D[int(index)].has_point3D():
+                inner.delete_observation(int(image_id), int(index))
+        held = tuple(o[rim] for o in obs)
+        held_res = [_residuals(r, held) for _, r in _fit_ladder(inner, workdir, top, iterations)]
+        ok = np.all([np.linalg.norm(r, axis=1) < 1e3 for r in held_res], axis=0)
+        ok &= np.linalg.norm(held_res[0], axis=1) <= 4 * MODEL_TEST_INLIER_PX  # rim outliers of the simplest
+        holdout_sse = [float(np.sum(r[ok] ** 2)) for r in held_res]
+        n_held = int(ok.sum())
+    chosen = len(fits) - 1
+    if model == "auto":
+        chosen = 0
+        for i in range(1, len(fits)):
+            extra = MODEL_PARAMS[fits[i][0]] - MODEL_PARAMS[fits[chosen][0]]
+            variance = sse[i] / max(n - MODEL_PARAMS[fits[i][0]], 1)
+            significant = (sse[chosen] - sse[i]) / variance > chi2.ppf(1 - MODEL_TEST_ALPHA, extra)
+            if significant and holdout_sse[i] < holdout_sse[chosen]:
+                chosen = i
+    steps = [{"model": name, "rms_px": float(np.sqrt(sse[i] / max(n, 1))), "observations": n // 2,
+              "holdout_rms_px": (float(np.sqrt(holdout_sse[i] / max(n_held, 1))) if np.isfinite(holdout_sse[i])
+                                 else None), "chosen": i == chosen} for i, (name, _) in enumerate(fits)]
+    note = ""
+    if model == "auto" and chosen < len(fits) - 1:
+        rejected = [name for name, _ in fits[chosen + 1:]]
+        note = (f"the views cannot constrain {', '.join(rejected)} beyond {fits[chosen][0]} (not significant at "
+                f"alpha {MODEL_TEST_ALPHA:g}, or no better on the outermost {HOLDOUT_FRACTION:.0%} of the features "
+                f"when fitted without them): kept {fits[chosen][0]}")
+    elif model != "auto" and len(fits) > 1:
+        extra = MODEL_PARAMS[fits[-1][0]] - MODEL_PARAMS[fits[-2][0]]
+        variance = sse[-1] / max(n - MODEL_PARAMS[fits[-1][0]], 1)
+        if not (sse[-2] - sse[-1]) / variance > chi2.ppf(1 - MODEL_TEST_ALPHA, extra):
+            note = (f"the views cannot constrain {model}'s terms beyond {fits[-2][0]} (no significant drop in "
+                    f"squared residuals, alpha {MODEL_TEST_ALPHA:g}): {model} kept as asked, its extra terms are noise")
+    return fits[chosen][1], steps, note
