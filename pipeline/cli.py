@@ -109,7 +109,12 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
 def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
           method: str = typer.Option("colmap", help="gt | colmap | charuco"),
           out: Optional[Path] = typer.Option(None, help="folder (default <capture>/../poses/<method>)"),
-          self_calibrate: bool = typer.Option(False, help="refine intrinsics (and distortion) too"),
+          self_calibrate: bool = typer.Option(False, help="estimate intrinsics and lens from the images (COLMAP)"),
+          camera_model: str = typer.Option("auto", help="COLMAP self-calibration's lens: auto | SIMPLE_RADIAL | "
+                                                        "RADIAL | OPENCV | FULL_OPENCV"),
+          calibration: Optional[str] = typer.Option(None, help="COLMAP intrinsics: known | self | charuco "
+                                                               "(cv2.calibrateCamera on the boards, held fixed); "
+                                                               "default self with --self-calibrate, else known"),
           image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
           max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
           matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | capture_order | sequential"),
@@ -122,10 +127,13 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     from .stages.poses import PosesConfig, run_poses
 
     try:
-        cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=not self_calibrate, image_scale=image_scale,
+        calibration = calibration or ("self" if self_calibrate else "known")
+        if self_calibrate and calibration == "known":
+            raise BadInput("--calibration known contradicts --self-calibrate")
+        cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=calibration != "self", image_scale=image_scale,
                                               max_features=max_features, matcher=matcher,
-                                              mapper=mapper),
-                          charuco=CharucoConfig(calibrate=self_calibrate))
+                                              mapper=mapper, camera_model=camera_model),
+                          charuco=CharucoConfig(calibrate=self_calibrate), calibration=calibration)
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "poses" / method
@@ -133,6 +141,12 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     mt = m["metrics"]
     typer.echo(f"poses {method}: {mt['views_registered']}/{mt['views_total']} views, "
                f"rotation error {mt['rotation_error_deg_mean']:.4f} deg mean -> {out}")
+    if mt.get("calibration", "known") != "known":
+        typer.echo(f"lens ({mt['calibration']}, {mt.get('camera_model', '')}): focal {100 * mt['focal_rel']:.3f}% off, "
+                   f"principal point {mt['principal_point_px']:.2f} px off, projection within "
+                   f"{mt['projection_error_px_max']:.2f} px over the image")
+    if mt.get("camera_model_note"):
+        typer.echo(f"note: {mt['camera_model_note']}")
 
 
 @app.command()
