@@ -3,7 +3,8 @@
 Set-up (not timed): the default turntable scene is captured at its own size into a temporary
 folder. Timed:
 
-* ``build_direct_s``: the stage's default slab set (8 ring slabs, uv_res 8, st_res 384) acquired
+* ``build_direct_s``: the stage's default slab set (8 ring slabs, uv_res 8, st at the capture's pixel
+  footprint, float16 samples: ~235M rays, 1.75 GiB on the default scene) acquired
   directly with the rig's rasterizer (sheared cameras), assembled into memory-mapped arrays.
 * ``build_rebin_s``: the same layout rebinned from the 48 captured train views and their depth.
 * ``compress_s``: vector quantization of the direct slab set (recon.slab.compress_slabs, defaults).
@@ -16,6 +17,18 @@ folder. Timed:
   (float64 plane intersections and gathers per ray, one thread); ``speedup`` = baseline / ours.
 
 Run: ``.venv/bin/python -m bench.bench_slab``; writes bench/results/slab.json.
+
+At the capture's resolution (issue 15): ``.venv/bin/python -m bench.bench_slab --capture-resolution
+CAPTURE_DIR [--poses POSES_DIR]`` runs the slab stage as a process (``python -m pipeline slab``,
+under ``/usr/bin/time`` for its wall time and peak resident memory) for each configuration of
+:data:`CONFIGS` (``before``: st 384 float32, the former default; ``after``: st from the pixel
+footprint, float16), direct and, given COLMAP's poses, rebinned (slab-colmap), and scores its
+depth-corrected renders against the capture's own held-out views at the capture's size (display
+PSNR / SSIM, LDR- and HDR-ꟻLIP, linear PSNR; whole image and the subject's mask), beside the
+all-black image's scores, with the slab set's bytes, the VQ figures the stage wrote, and frames/s of
+one held-out view at the capture's size from the memory-mapped set. Writes
+bench/results/slab_capture_resolution.json (machine, load averages) and a side-by-side crop of the
+board (reference | each configuration) as slab_capture_resolution_crop.png.
 """
 from __future__ import annotations
 
@@ -25,7 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.common import median_time, write_result
+from bench.common import RESULTS_DIR, median_time, write_result
 from render.camera import Camera, Intrinsics
 from render.camera_io import read_cameras_json
 from render.lightfield import MODES, load_slabs, render_pinhole, render_rays
@@ -106,5 +119,134 @@ def main() -> None:
         })
 
 
+#: configurations of the capture-resolution row: label -> extra ``lumigraph slab`` options
+CONFIGS = {"before_st384_float32": ["--st-res", "384", "--precision", "single"],
+           "after_footprint_float16": []}
+#: the board crop of the side-by-side (rows, cols of a 1280x960 held-out view; scaled to others)
+CROP = (slice(560, 800), slice(300, 620))
+
+
+def _time_log(path: Path) -> dict:
+    """Wall time and peak RSS from GNU time's log: ``-f "%e %M"`` or ``-v``."""
+    text = path.read_text()
+    if "Maximum resident set size" not in text:
+        wall, rss_kb = text.split()[-2:]
+        return {"stage_wall_s": float(wall), "peak_rss_mb": round(int(rss_kb) / 1024, 1)}
+    out = {}
+    for line in text.splitlines():
+        key, _, value = line.strip().rpartition(": ")
+        if key.startswith("Elapsed (wall clock)"):
+            parts = [float(x) for x in value.split(":")]
+            out["stage_wall_s"] = round(sum(x * 60 ** i for i, x in enumerate(reversed(parts))), 2)
+        elif key.startswith("Maximum resident set size"):
+            out["peak_rss_mb"] = round(int(value) / 1024, 1)
+    return out
+
+
+def _stage(capture: Path, out: Path, args: list[str], poses: Path | None) -> dict:
+    """Run the slab stage as a process; its wall time and peak RSS (GNU time's %e, %M)."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "pipeline", "slab", str(capture), "--out", str(out), "--reference", str(capture),
+           "--quiet", "--overwrite", *args, *(["--method", "rebin", "--poses", str(poses)] if poses else [])]
+    timing = out.parent / f"{out.name}.time"
+    run = subprocess.run(["/usr/bin/time", "-f", "%e %M", "-o", str(timing), *cmd], capture_output=True, text=True)
+    if run.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed: {run.stderr.strip().splitlines()[-1:]}")
+    return _time_log(timing)
+
+
+def _scores(capture: Path, folder: Path, views: list[str]) -> tuple[dict, dict]:
+    """(mean scores of ``folder``'s renders, of the all-black image) against the capture's views."""
+    import numpy as np
+
+    from pipeline.stages.validate import subject_mask
+    from render.image_io import read_exr
+    from render.metrics import black_image_scores, score_images
+
+    rows, black = [], []
+    for v in views:
+        ref = read_exr(capture / "linear" / f"{v}.exr")
+        mask = subject_mask(capture, v, ref.shape)
+        rows.append(score_images(read_exr(folder / "renders" / f"{v}.exr"), ref, mask))
+        black.append(black_image_scores(ref, mask))
+    mean = lambda rs: {k: round(float(np.mean([r[k] for r in rs])), 4) for k in rs[0]}  # noqa: E731
+    return mean(rows), mean(black)
+
+
+def capture_resolution(capture: Path, poses: Path | None, work: Path, built: dict[str, Path] | None = None) -> None:
+    """The capture-resolution rows (module docstring). ``built``: row label -> a slab stage folder
+    already built by the same command (its GNU time log, ``-v`` or ``-f "%e %M"``, at
+    ``<folder>.time`` when there is one; else the manifest's wall time and no peak memory), scored
+    instead of running :data:`CONFIGS` (rows cost tens of minutes each on a loaded machine)."""
+    import json
+
+    import numpy as np
+
+    from render.image_io import read_exr, write_preview
+
+    cams, splits = read_cameras_json(capture / "cameras.json")
+    test = [c for c, s in zip(cams, splits) if s == "test"]
+    views = [c.name for c in test]
+    rows, crops, black = {}, [], None
+    first = read_exr(capture / "linear" / f"{views[0]}.exr")
+    h, w = first.shape[:2]
+    crop = (slice(CROP[0].start * h // 960, CROP[0].stop * h // 960),
+            slice(CROP[1].start * w // 1280, CROP[1].stop * w // 1280))
+    crops.append(first[crop])
+    loads = {"start": [round(x, 2) for x in os.getloadavg()]}
+    if built is None:
+        plan = [(f"{label}_{method}", work / f"{label}_{method}", args, pose_dir) for label, args in CONFIGS.items()
+                for method, pose_dir in (("direct", None), ("rebin_colmap", poses))
+                if method == "direct" or pose_dir is not None]
+    else:
+        plan = [(label, Path(folder), None, None) for label, folder in built.items()]
+    for name, out, args, pose_dir in plan:
+        if args is not None:
+            row = _stage(capture, out, args, pose_dir)
+        elif out.with_name(out.name + ".time").is_file():
+            row = _time_log(out.with_name(out.name + ".time"))
+        else:
+            row = {"stage_wall_s": json.loads((out / "manifest.json").read_text())["wall_time_s"],
+                   "peak_rss_mb": None}
+        metrics = json.loads((out / "metrics.json").read_text())
+        row["scores"], black = _scores(capture, out, views)
+        build = metrics["build"]
+        row.update(rays=build.get("rays"), slab_bytes=build["bytes"], precision=build.get("precision", "single"),
+                   shapes={k: v["shape"] for k, v in build["slabs"].items()}, build_s=build["build_s"],
+                   stage_display_psnr=metrics.get("display_psnr_mean"))
+        if "compression" in metrics:
+            c = metrics["compression"]
+            row["vq"] = {"ratio_vs_float32": round(c["ratio_vs_float32"], 1), "display_psnr": c.get("display_psnr"),
+                         "compress_s": c["compress_s"]}
+        slabs = load_slabs(out / "slabs")
+        wall, cpu = _frame_times(lambda: render_pinhole(slabs, test[0], "depth", threads=2), 3)
+        row["fps_capture_size_2_threads"] = round(1.0 / wall, 2)
+        row["frame_cpu_ms"] = round(cpu * 1e3, 1)
+        rows[name] = row
+        loads[f"after_{name}"] = [round(x, 2) for x in os.getloadavg()]
+        crops.append(read_exr(out / "renders" / f"{views[0]}.exr")[crop])
+    write_preview(RESULTS_DIR / "slab_capture_resolution_crop.png", np.concatenate(crops, axis=1))
+    write_result("slab_capture_resolution", {
+        "capture": str(capture), "size": [w, h], "views": views, "reference": "the capture's held-out views",
+        "mode": "depth", "loadavg_1_5_15": loads, "black_image": black, "rows": rows,
+        "crop": {"view": views[0], "rows": [crop[0].start, crop[0].stop], "cols": [crop[1].start, crop[1].stop],
+                 "panels": ["reference", *rows]}})
+
+
 if __name__ == "__main__":
-    main()
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--capture-resolution", type=Path, default=None, metavar="CAPTURE_DIR")
+    parser.add_argument("--poses", type=Path, default=None, help="COLMAP's poses folder (adds slab-colmap rows)")
+    parser.add_argument("--built", nargs="*", default=None, metavar="LABEL=DIR",
+                        help="score slab stage folders already built instead of building CONFIGS")
+    ns = parser.parse_args()
+    if ns.capture_resolution is None:
+        main()
+    else:
+        built = None if ns.built is None else {k: Path(v) for k, v in (b.split("=", 1) for b in ns.built)}
+        with tempfile.TemporaryDirectory(prefix="bench_slab_cr_") as tmp:
+            capture_resolution(ns.capture_resolution.resolve(), ns.poses.resolve() if ns.poses else None, Path(tmp), built)
