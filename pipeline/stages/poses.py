@@ -21,8 +21,14 @@ rotation_error_deg_{mean,median,max}, center_error_rel_{mean,max} (divided by sc
 median distance of the true camera centres from their centroid), alignment_scale, worst_view,
 reprojection_error_px, focal_rel / principal_point_px / distortion_abs_max (intrinsics error),
 self_check_folded / self_check_reason / max_azimuth_gap_deg / duplicate_pairs (no ground truth
-used), estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
-options, the matcher and mapper that ran, pairs matched and {extract,match,map}_time_s; charuco adds board_not_visible, corners_{min,mean} and aligned_* scores.
+used), projection_error_px_{max,view_max_mean,mean} and lens_projection_error_px_{max,mean} (the
+whole camera and the lens alone against the truth, :func:`recon.poses.projection_error`),
+estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
+options, the matcher and mapper that ran, pairs matched and {extract,match,map}_time_s, the
+calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
+constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre
+the features reach; the ``*_covered`` projection maxima are within it), rational_refit_px and,
+with ``--calibration charuco``, charuco_calibration_{views,rms_px,time_s}; charuco adds board_not_visible, corners_{min,mean} and aligned_* scores.
 
 Failure (a method ran but its result is unusable: no model, too few views registered, no board
 ever visible, a folded turntable circle, a pose error above the gate). Both promises hold:
@@ -407,7 +413,8 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
     if method == "colmap" and config.colmap.matcher == "capture_order" and cap.order is None:
         raise BadInput(f"{cap.folder / 'capture_order.json'}: no shooting order in the capture "
                        "(needed by --matcher capture_order; capture it again, or use --matcher exhaustive)")
-    params = {"method": method, "capture": str(capture_dir), **({"colmap": asdict(config.colmap)} if method == "colmap"
+    params = {"method": method, "capture": str(capture_dir),
+              **({"colmap": asdict(config.colmap), "calibration": config.calibration} if method == "colmap"
               else {"charuco": asdict(config.charuco)} if method == "charuco" else {}), "gates": asdict(config.gates)}
     manifest = Manifest("poses", params=params)
     manifest.add_input(cap.folder / "cameras.json")

@@ -122,3 +122,63 @@ def test_lens_flags_are_checked_with_one_line(tmp_path, args, word):
     proc = lumigraph("poses", tmp_path, "--method", "colmap", *args)
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(lines) == 1 and word in lines[0], proc.stderr
+
+
+# --------------------------------------------------------------------------- closed forms (no capture)
+
+def _orbit(k, n=6):
+    """``n`` cameras of intrinsics ``k`` 1 m from the origin, looking at it (OpenCV axes)."""
+    from render.camera import Camera
+
+    cams = []
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        c = np.array([np.cos(a), np.sin(a), 0.5])
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        m = np.eye(4)
+        m[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+        m[:3, 3] = c
+        cams.append(Camera(k, m, f"v{i}"))
+    return cams
+
+
+def test_projection_error_is_zero_for_the_truth_and_the_shift_of_a_moved_principal_point():
+    """The whole-camera and lens-only errors: 0 for the true cameras; a principal point moved by
+    (0.6, 0.8) px moves every projection by exactly 1 px, at any depth."""
+    from dataclasses import replace
+
+    from recon.poses import projection_error
+    from render.camera import Intrinsics
+
+    k = Intrinsics(320, 240, 300.0, 300.0, 163.0, 118.0, (-0.12, 0.03, 0.0008, -0.0005, 0.0))
+    truth = _orbit(k)
+    by_name = {c.name: c for c in truth}
+    same = projection_error(truth, by_name, radius_rel=0.5)
+    assert max(same.values()) < 1e-9
+    moved = [replace(c, intrinsics=replace(k, cx=k.cx + 0.6, cy=k.cy + 0.8)) for c in truth]
+    shifted = projection_error(moved, by_name)
+    for key in ("projection_error_px_max", "projection_error_px_mean", "lens_projection_error_px_max"):
+        assert shifted[key] == pytest.approx(1.0, abs=1e-9)
+
+
+def test_promoting_a_camera_model_keeps_its_projection_and_rational_refit_is_exact_without_k4():
+    """calibrate_lens starts each model from the previous solution: SIMPLE_RADIAL -> RADIAL ->
+    OPENCV -> FULL_OPENCV with the new terms at 0 projects every point where it did; a
+    FULL_OPENCV camera with k4 = k5 = k6 = 0 is written as its own Brown lens (0 px)."""
+    import pycolmap
+
+    from recon.poses.colmap import CAMERA_MODELS, _camera_from_colmap, _promote, rational_refit_px
+
+    cam = pycolmap.Camera.create_from_model_name(1, "SIMPLE_RADIAL", 300.0, 320, 240)
+    cam.params = [300.0, 163.0, 118.0, -0.12]
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-0.5, 0.5, (200, 2)), np.ones(200)])
+    before = np.asarray(cam.img_from_cam(points))
+    for model in CAMERA_MODELS[1:]:
+        _promote(cam, model)
+        assert cam.model_name == model
+        np.testing.assert_allclose(np.asarray(cam.img_from_cam(points)), before, atol=1e-9)
+    assert rational_refit_px(cam) == 0.0
+    assert _camera_from_colmap(cam, 1.0, 320, 240).dist == (-0.12, 0.0, 0.0, 0.0, 0.0)
