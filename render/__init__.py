@@ -10,3 +10,8 @@
 - ``lightfield/``: Levoy-Hanrahan light slabs: geometry, rendering, storage.
 - ``image_io``, ``color``, ``metrics``: EXR/PNG files, sRGB, and the project's image metrics.
 """
+
+from ._kernel_cache import use_keyed_cache as _use_keyed_cache
+
+# before any kernel module is imported: numba's cache keyed by render/'s sources (see _kernel_cache)
+_use_keyed_cache()
