@@ -31,7 +31,9 @@ import numpy as np
 from numba import njit
 
 from .. import embree_direct as _edirect
-from .path_kernels import _albedo, _sample_area, _sample_delta
+from .path_kernels import _GOLDEN, _M2, _albedo, _frame, _mix64, _pick, _sample_area, _sample_delta
+from .path_kernels import _offset as _eps
+from .path_kernels import _uniform as _u
 
 __all__ = ["BdptConfig", "N_FIELDS", "N_STATE", "start_camera", "start_light", "extend", "prefix_sums", "connect",
            "queue_bound", "trace_batch"]
@@ -60,13 +62,6 @@ _CLAMP = 1e150
 _BIG = 1e300
 _INV_PI = 1.0 / math.pi
 _TMAX_CAP = 3e38
-_OFFSET_REL = 1e-6  # render.accel.OFFSET_REL
-
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
-_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
-_INV_2_53 = 1.0 / 9007199254740992.0
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -94,54 +89,10 @@ class BdptConfig(NamedTuple):
 
 # ------------------------------------------------------------------ small helpers
 @njit(inline="always", **_JIT)
-def _mix64(x):
-    x = x ^ (x >> _S30)
-    x = x * _M1
-    x = x ^ (x >> _S27)
-    x = x * _M2
-    return x ^ (x >> _S31)
-
-
-@njit(inline="always", **_JIT)
-def _u(key, dim):
-    """render.sampling.uniform for one key and dimension."""
-    return np.float64(_mix64(key + np.uint64(dim + 1) * _GOLDEN) >> _S11) * _INV_2_53
-
-
-@njit(inline="always", **_JIT)
 def _key(seed_mix, pixel, sample):
     """render.sampling.path_keys for one (pixel, sample)."""
     k = _mix64(np.uint64(pixel) * _GOLDEN ^ seed_mix)
     return _mix64(k ^ (np.uint64(sample) * _M2 + _GOLDEN))
-
-
-@njit(inline="always", **_JIT)
-def _frame(nx, ny, nz):
-    """render.sampling.orthonormal_frame for one unit normal: (s, t)."""
-    sign = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
-
-
-@njit(inline="always", **_JIT)
-def _pick(cdf, u):
-    """min(searchsorted(cdf, u * cdf[-1], side='right'), len - 1)."""
-    x = u * cdf[len(cdf) - 1]
-    lo, hi = 0, len(cdf)
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if cdf[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    return min(lo, len(cdf) - 1)
-
-
-@njit(inline="always", **_JIT)
-def _eps(px, py, pz, extent):
-    """render.accel.offset_eps at one point."""
-    return _OFFSET_REL * (max(max(abs(px), abs(py)), abs(pz)) + 1e-2 * extent)
 
 
 @njit(inline="always", **_JIT)
