@@ -10,7 +10,10 @@ export PYOPENGL_PLATFORM := egl
 
 .PHONY: setup demo test bench repro lock clean
 
+# the renderers' numba kernels compiled ahead of first use (once per source tree: a marker in the
+# cache folder, keyed by render/'s sources, makes later runs a no-op)
 setup: $(STAMP) $(CONFORMANCE)
+	$(BIN)/python -m pipeline.warm_kernels
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	./scripts/install-system-deps.sh

@@ -1,0 +1,32 @@
+"""`python -m pipeline.warm_kernels` (run by `make setup`): every integrator compiled ahead of use."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from pipeline.warm_kernels import MARKER, WARM_RENDERS
+from render._kernel_cache import sources_digest
+from render.integrators import INTEGRATORS
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_every_registered_integrator_is_warmed():
+    """A new integrator added to the registry without a warm-up render fails here (its first
+    user would wait for numba instead)."""
+    assert sorted(i for _, i in WARM_RENDERS) == sorted(INTEGRATORS)
+
+
+def test_a_warm_tree_is_a_no_op_through_the_process(tmp_path):
+    """With the marker in this tree's cache folder the command renders nothing and exits 0 at once;
+    the folder it reads is <base>/<digest of render/>."""
+    folder = tmp_path / sources_digest()
+    folder.mkdir()
+    (folder / MARKER).write_text("path 1.0\n")
+    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path)}
+    r = subprocess.run([sys.executable, "-m", "pipeline.warm_kernels"], cwd=REPO, env=env, capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "already compiled" in r.stdout and str(folder) in r.stdout
