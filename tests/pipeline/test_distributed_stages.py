@@ -73,16 +73,20 @@ def test_capture_cli_takes_the_scheduler_from_the_environment(scenes, captured, 
     assert m["metrics"]["engine"] == "dask cluster" and m["outputs"] == read_manifest(captured["raster"])["outputs"]
 
 
+#: metrics.json's readings of the machine at run time (the slab stage's fit check and peak memory)
+_MACHINE_STATE = ("render_s_per_view", "peak_rss_mb", "available_memory_bytes", "free_disk_bytes")
+
+
 def _timeless(node):
-    """metrics.json without its timings (keys ending in _s, and render_s_per_view)."""
+    """metrics.json without its timings (keys ending in _s) and the machine's state at run time."""
     if isinstance(node, dict):
-        return {k: _timeless(v) for k, v in node.items() if not (k.endswith("_s") or k == "render_s_per_view")}
+        return {k: _timeless(v) for k, v in node.items() if not (k.endswith("_s") or k in _MACHINE_STATE)}
     return node
 
 
 def test_slab_same_bytes_in_process_and_on_2_workers(captured, two_workers, tmp_path):
     """Direct acquisition (rows of uv cameras), held-out renders in every mode and the VQ renders
-    (one view per unit): every file the same bytes; metrics.json equal but for its timings."""
+    (one view per unit): every file the same bytes; metrics.json equal but for its timings and machine readings."""
     results = {}
     for tag, cluster in (("local", None), ("dask", two_workers)):
         out = tmp_path / tag
