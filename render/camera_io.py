@@ -42,6 +42,7 @@ from .image_io import atomic_path
 from .poses import c2w_to_rigid3d, opencv_to_opengl, opengl_to_opencv, rigid3d_to_c2w
 
 __all__ = [
+    "colmap_camera",
     "SPLITS", "CAMERAS_JSON_FORMAT", "MAX_IMAGE_SIDE", "MAX_NAME_BYTES", "view_name_problem",
     "write_cameras_json", "read_cameras_json",
     "ColmapPoints", "colmap_reconstruction", "write_colmap_model", "write_colmap_text", "read_colmap_model",
@@ -254,7 +255,7 @@ def read_cameras_json(path) -> tuple[list[Camera], list[str]]:
 # --------------------------------------------------------------------------- COLMAP text
 
 
-def _colmap_camera(k: Intrinsics) -> tuple[str, tuple[float, ...]]:
+def colmap_camera(k: Intrinsics) -> tuple[str, tuple[float, ...]]:
     """Our intrinsics -> COLMAP ``(model, params)``; principal point unchanged (same convention)."""
     k1, k2, p1, p2, k3 = k.dist
     base = (k.fx, k.fy, k.cx, k.cy)
@@ -353,7 +354,7 @@ def colmap_reconstruction(cameras: Sequence[Camera], image_names: Sequence[str],
         keypoints = np.split(np.asarray(points.obs_xy, dtype=np.float64)[order], starts[1:])
     for img_id, (c, name) in enumerate(zip(cams, names), start=1):
         k = c.intrinsics
-        model, params = _colmap_camera(k)
+        model, params = colmap_camera(k)
         key = (model, k.width, k.height, params)
         if key not in cam_ids:
             cam_ids[key] = len(cam_ids) + 1

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from render.camera import Camera, Intrinsics
+from render.camera_io import colmap_camera
 
 from .pairing import ViewOrder, capture_order_pairs
 
@@ -252,18 +253,6 @@ def rational_refit_px(cam) -> float:
     return _brown_from_rational(np.asarray(cam.params, dtype=np.float64), cam.width, cam.height)[1]
 
 
-def _fixed_camera(k: Intrinsics) -> tuple[str, tuple[float, ...]]:
-    """COLMAP model and params of a known calibration: PINHOLE without distortion, OPENCV
-    (k1 k2 p1 p2) with it, FULL_OPENCV (k4..k6 = 0) when k3 != 0."""
-    k1, k2, p1, p2, k3 = k.dist
-    base = (k.fx, k.fy, k.cx, k.cy)
-    if not k.has_distortion:
-        return "PINHOLE", base
-    if k3 == 0.0:
-        return "OPENCV", base + (k1, k2, p1, p2)
-    return "FULL_OPENCV", base + (k1, k2, p1, p2, k3, 0.0, 0.0, 0.0)
-
-
 def _observed_radius(rec) -> float:
     """99th percentile of the triangulated keypoints' distance from the image centre, over the
     half-diagonal (1 at the corners)."""
@@ -371,7 +360,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
 
     reader = pycolmap.ImageReaderOptions()
     if config.known_intrinsics:
-        reader.camera_model, params = _fixed_camera(intrinsics.scaled(sw / width))
+        reader.camera_model, params = colmap_camera(intrinsics.scaled(sw / width))
         reader.camera_params = ",".join(repr(float(v)) for v in params)
     else:
         reader.camera_model = "SIMPLE_RADIAL"
