@@ -28,6 +28,8 @@ import numpy as np
 from render.camera import Camera
 from render.lightfield import LightSlab, SlabGeometry, create_slab_arrays, write_slab_index
 
+from .rebin_kernels import blend_rays
+
 __all__ = ["SourceView", "RebinConfig", "RebinStats", "point_cloud", "splat_depth", "rebin_slabs"]
 
 
@@ -212,7 +214,16 @@ class _Views:
 
 def _blend_rays(views: _Views, P: np.ndarray, r: np.ndarray, cfg: RebinConfig, tol_abs: float
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Radiance (N, 3) float32 and filled (N,) bool for rays of unit direction r reaching P."""
+    """Radiance (N, 3) float32 and filled (N,) bool for rays of unit direction r reaching P
+    (the compiled kernel; :func:`_blend_rays_numpy` is its tested reference)."""
+    k = views.k
+    return blend_rays(P, r, views.rgb, views.depth, views.centres, views.w2c, (k.fx, k.fy, k.cx, k.cy),
+                      cfg.candidates, cfg.cameras_per_ray, cfg.depth_tolerance, tol_abs)
+
+
+def _blend_rays_numpy(views: _Views, P: np.ndarray, r: np.ndarray, cfg: RebinConfig, tol_abs: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_blend_rays` in numpy, over (N, views, 3) arrays: the reference the kernel is tested against."""
     n, M = len(P), len(views.centres)
     m = min(cfg.candidates, M)
     to_p = P[:, None, :] - views.centres[None]                   # (N, M, 3) view -> P

@@ -340,3 +340,26 @@ def test_st_resolution_follows_the_capture_pixel_footprint(focal):
     assert max(fixed.shape[2:]) == 30
     with pytest.raises(ValueError, match="focal"):
         fit_slabs(np.array([[0.0, 0, 1]]), BOUNDS, eyes, [0, 1.0, 0], st_res=None)
+
+
+@pytest.mark.parametrize("cfg", [RebinConfig(), RebinConfig(cameras_per_ray=2, candidates=6),
+                                 RebinConfig(cameras_per_ray=4, candidates=40)])
+def test_compiled_blend_matches_the_numpy_reference(captures, cfg):
+    """The compiled per-ray blend against its numpy reference on rays towards points near and off
+    the square (seen, occluded, outside every view), with more and fewer candidates than views."""
+    from recon.slab.rebin import _blend_rays, _blend_rays_numpy, _Views
+    rng = np.random.default_rng(3)
+    n = 4000
+    P = np.concatenate([rng.uniform(-HALF, HALF, (n, 3)) * [1, 1, 0],         # on the square
+                        rng.uniform(-0.6, 0.6, (n, 3))])                      # anywhere: mostly unseen
+    eye = rng.normal(size=(2 * n, 3))
+    eye[:, 2] = np.abs(eye[:, 2]) + 0.3
+    r = P - eye
+    r /= np.linalg.norm(r, axis=1, keepdims=True)
+    views = _Views(captures)
+    want, want_ok = _blend_rays_numpy(views, P, r, cfg, 0.01)
+    got, got_ok = _blend_rays(views, P, r, cfg, 0.01)
+    assert 0.2 < want_ok.mean() < 0.9                       # both kinds of ray are exercised
+    np.testing.assert_array_equal(got_ok, want_ok)
+    np.testing.assert_allclose(got, want, atol=2e-6)
+    assert np.all(got[~got_ok] == 0)
