@@ -48,6 +48,7 @@ import numpy as np
 
 from recon.slab import (SourceView, DirectConfig, LayoutConfig, RebinConfig, VQConfig, acquire_direct, acquire_row,
                         compress_slabs, content_bounds, layout_rays, rebin_slabs, renders_per_uv, slab_layout)
+from recon.undistort import undistort_view
 from render.camera import Camera
 from render.image_io import write_exr, write_png, write_preview
 from render.metrics import psnr, ssim, to_display
@@ -111,13 +112,15 @@ def _cameras(folder: Path) -> tuple[list[Camera], list[str]]:
 
 
 def load_views(capture_dir: Path, cameras: list[Camera]) -> list[SourceView]:
-    """Linear radiance and z-depth of ``cameras`` from the capture (BadInput on missing files)."""
+    """Linear radiance and z-depth of ``cameras`` from the capture (BadInput on missing files),
+    undistorted to each camera's pinhole (rebinning projects with an ideal pinhole)."""
     views = []
     for cam in cameras:
         k = cam.intrinsics
         rgb = read_image(Path(capture_dir) / "linear" / f"{cam.name}.exr", (k.height, k.width, 3))
         depth = read_image(Path(capture_dir) / "depth" / f"{cam.name}.exr", (k.height, k.width))
-        views.append(SourceView(cam, rgb, depth))
+        pinhole, rgb, depth, _ = undistort_view(cam, rgb, depth)
+        views.append(SourceView(pinhole, rgb, depth))
     return views
 
 
