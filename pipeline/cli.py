@@ -10,10 +10,7 @@ from typing import Optional
 
 import typer
 
-from recon.slab.layout import LayoutConfig
-
 from .artifacts import DEFAULT_ROOT, BadInput, stage_dir
-from .params import RunParams
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="lumigraph: capture, estimate poses, build light slabs and NeRFs, validate against a path tracer.")
@@ -156,11 +153,14 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
          method: str = typer.Option("direct", help="direct (sheared cameras through the rig) | rebin (from the captures)"),
          mode: str = typer.Option("depth", help="nearest | uv | st | quadrilinear | depth"),
          layout: str = typer.Option("ring", help="ring (slabs around the turntable axis) | box (six faces)"),
-         uv_res: int = typer.Option(LayoutConfig.uv_res, help="uv samples along a uv quad's longer side"),
-         st_res: Optional[int] = typer.Option(LayoutConfig.st_res, help="st samples along an st quad's longer side "
+         # defaults None = recon.slab.LayoutConfig's: reading them here would import recon.slab (0.4 s, and
+         # its numba kernels) for --help and every verb
+         uv_res: Optional[int] = typer.Option(None, help="uv samples along a uv quad's longer side "
+                                              "(default: recon.slab.LayoutConfig's)"),
+         st_res: Optional[int] = typer.Option(None, help="st samples along an st quad's longer side "
                                               "(default: from the capture's pixel footprint, --st-per-pixel)"),
-         st_per_pixel: float = typer.Option(LayoutConfig.st_per_pixel,
-                                            help="st samples per capture pixel of the subject's footprint on the st plane"),
+         st_per_pixel: Optional[float] = typer.Option(None, help="st samples per capture pixel of the subject's "
+                                                      "footprint on the st plane (default: LayoutConfig's)"),
          precision: str = typer.Option("half", help="slab samples: half (float16) | single (float32)"),
          compress: bool = typer.Option(True, "--compress/--no-compress",
                                        help="also vector-quantize the slabs and score the views from them"),
@@ -176,7 +176,8 @@ def slab(capture_dir: Path = typer.Argument(..., help="a capture folder"),
 
     try:
         cfg = SlabStageConfig(method=method, mode=mode, compress=compress, precision=precision,
-                              layout=LayoutConfig(kind=layout, uv_res=uv_res, st_res=st_res, st_per_pixel=st_per_pixel))
+                              layout=LayoutConfig(kind=layout, st_res=st_res, **{
+                                  k: v for k, v in (("uv_res", uv_res), ("st_per_pixel", st_per_pixel)) if v is not None}))
     except ValueError as exc:
         raise BadInput(str(exc)) from None
     out = out or capture_dir.parent / "slab"
@@ -301,13 +302,17 @@ def inspect(folder: Path = typer.Argument(..., help="any stage folder"),
 
 
 @app.command()
-def run(scene: str = typer.Argument(RunParams.scene, help="built-in scene name or path to a scene YAML"),
+# defaults None = params.yaml's (pipeline.params.RunParams): reading them here would import
+# pipeline.params and with it recon.slab (its numba kernels, ~0.4 s) for --help and every verb
+def run(scene: Optional[str] = typer.Argument(None, help="built-in scene name or path to a scene YAML "
+                                                     "(default: params.yaml's)"),
         root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
         seed: Optional[int] = typer.Option(None, help="seed (default: the spec's)"),
-        spp: int = typer.Option(RunParams.reference_spp, help="reference samples per pixel"),
-        colmap_image_scale: float = typer.Option(RunParams.poses_image_scale, help="COLMAP's image scale"),
-        nerf_model: str = typer.Option(RunParams.nerf_model, help="NeRF model"),
-        nerf_minutes: float = typer.Option(RunParams.nerf_minutes, help="NeRF training budget (0: skip the NeRF)"),
+        spp: Optional[int] = typer.Option(None, help="reference samples per pixel (default: params.yaml's)"),
+        colmap_image_scale: Optional[float] = typer.Option(None, help="COLMAP's image scale (default: params.yaml's)"),
+        nerf_model: Optional[str] = typer.Option(None, help="NeRF model (default: params.yaml's)"),
+        nerf_minutes: Optional[float] = typer.Option(None, help="NeRF training budget (0: skip the NeRF; "
+                                                                "default: params.yaml's)"),
         scheduler: Optional[str] = SCHEDULER,
         workers: Optional[int] = WORKERS,
         quiet: bool = QUIET,
@@ -315,11 +320,13 @@ def run(scene: str = typer.Argument(RunParams.scene, help="built-in scene name o
     """Every stage in order, as dvc.yaml wires them: capture, reference, poses, slab, NeRF, validate,
     report; ends with the report's path. One engine (in process, a local cluster or --scheduler's)
     serves every stage's units of work. Defaults: params.yaml's (pipeline.params.RunParams)."""
+    from .params import RunParams
     from .pipeline_run import run_pipeline
 
-    rig, path = _load(scene)
-    params = RunParams(scene=scene, reference_spp=spp, poses_image_scale=colmap_image_scale, nerf_model=nerf_model,
-                       nerf_minutes=nerf_minutes)
+    given = {"scene": scene, "reference_spp": spp, "poses_image_scale": colmap_image_scale, "nerf_model": nerf_model,
+             "nerf_minutes": nerf_minutes}
+    params = RunParams(**{k: v for k, v in given.items() if v is not None})
+    rig, path = _load(params.scene)
     summary = run_pipeline(rig, path, Path(root), params, seed=seed, quiet=quiet,
                            cluster=_cluster(scheduler, workers), overwrite=overwrite)
     for line in summary:

@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # meshes are trimesh.Trimesh, but only their arrays are read here: trimesh (and the
-    import trimesh  # scipy and networkx it pulls in, ~2 s) stays out of the verbs that only render
+if TYPE_CHECKING:  # meshes are TriangleMesh or trimesh.Trimesh, of which only the arrays are read here:
+    import trimesh  # trimesh (and the scipy and networkx it pulls in, ~1-2 s) stays out of renders
 
 __all__ = [
     "Lambertian", "Mirror", "Dielectric", "Emissive", "DiffuseEmitter", "RoughConductor", "RoughDielectric",
     "ALPHA_SMOOTH", "Material",
     "PointLight", "SpotLight", "DirectionalLight", "Light", "Medium",
-    "SceneObject", "Scene", "spot_falloff",
+    "SceneObject", "Scene", "TriangleMesh", "spot_falloff",
 ]
 
 
@@ -221,6 +221,64 @@ class DirectionalLight:
 
 
 Light = PointLight | SpotLight | DirectionalLight
+
+
+class _Visual:
+    """``mesh.visual`` of a :class:`TriangleMesh`: only ``uv``, as trimesh's TextureVisuals has it."""
+
+    __slots__ = ("uv",)
+
+    def __init__(self, uv):
+        self.uv = uv
+
+
+class TriangleMesh:
+    """A triangle mesh as arrays: the part of ``trimesh.Trimesh``'s interface the renderers read,
+    without importing trimesh (start-up cost: the rig builds quads and boxes as these; trimesh
+    stays the loader of mesh files and the builder of spheres and cylinders).
+
+    vertices: (V, 3) float64 world coordinates; faces: (F, 3) int64 vertex indices, counter-clockwise
+    seen from the front (the side ``face_normals`` point to); uv: (V, 2) float64 texture
+    coordinates (OpenGL's: v up) or None, read as ``visual.uv``; is_convex: whether the closed
+    surface is convex (trimesh's meaning: an open mesh such as a quad is not).
+    """
+
+    __slots__ = ("vertices", "faces", "visual", "is_convex")
+
+    def __init__(self, vertices, faces, uv=None, is_convex: bool = False):
+        self.vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        self.faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
+            raise ValueError(f"faces index vertices 0..{len(self.vertices) - 1}, got {self.faces.min()}..{self.faces.max()}")
+        self.visual = _Visual(None if uv is None else np.asarray(uv, dtype=np.float64).reshape(-1, 2))
+        self.is_convex = bool(is_convex)
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) float64: the vertices' minimum and maximum corners."""
+        return np.stack([self.vertices.min(0), self.vertices.max(0)])
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """(F, 3, 3) float64 corner positions."""
+        return self.vertices[self.faces]
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float64 unit normals (right-handed winding; zeros for degenerate faces)."""
+        t = self.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+    @property
+    def area_faces(self) -> np.ndarray:
+        """(F,) float64 triangle areas."""
+        t = self.triangles
+        return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+    def __repr__(self) -> str:
+        return f"<TriangleMesh {len(self.vertices)} vertices, {len(self.faces)} faces>"
 
 
 @dataclass

@@ -4,14 +4,14 @@ from __future__ import annotations
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from render.camera import Camera
 from render.scene import RoughConductor, RoughDielectric
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight,
-                          Scene, SceneObject, SpotLight)
+                          Scene, SceneObject, SpotLight, TriangleMesh)
 
 from .layouts import layout_cameras, make_intrinsics
 from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec,
@@ -20,7 +20,10 @@ from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, 
 from .textures import load_texture
 from .volumes import load_density_file, smoke_density
 
-__all__ = ["RigScene", "build_scene", "load_scene", "quad_mesh", "box_face_quads"]
+if TYPE_CHECKING:  # imported where a sphere, a cylinder or a mesh file needs it: quads and boxes are
+    import trimesh  # arrays, so a scene of those (the Cornell box) renders without trimesh's ~1 s import
+
+__all__ = ["RigScene", "build_scene", "load_scene", "quad_mesh", "box_mesh", "box_face_quads"]
 
 
 @dataclass
@@ -34,14 +37,27 @@ class RigScene:
     targets: dict[str, dict] = field(default_factory=dict)
 
 
-def quad_mesh(corners) -> trimesh.Trimesh:
+#: trimesh.creation.box's unit cube (vertices at +-0.5, x slowest) and its faces, outward-wound:
+#: the same triangles in the same order as before boxes stopped importing trimesh
+_BOX_CORNERS = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+_BOX_FACES = np.array([[1, 3, 0], [4, 1, 0], [0, 3, 2], [2, 4, 0], [1, 7, 3], [5, 1, 4], [5, 7, 1], [3, 7, 2],
+                       [6, 4, 2], [2, 7, 6], [6, 5, 4], [7, 5, 6]])
+
+
+def quad_mesh(corners) -> TriangleMesh:
     """Two triangles over four corners (counter-clockwise seen from the front), with uv
-    corner 0 -> (0, 0), 1 -> (1, 0), 2 -> (1, 1), 3 -> (0, 1)."""
+    corner 0 -> (0, 0), 1 -> (1, 0), 2 -> (1, 1), 3 -> (0, 1). Open, so not convex (trimesh's
+    answer for the same quad)."""
     v = np.asarray(corners, dtype=np.float64)
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=np.float64)
-    mesh = trimesh.Trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), process=False)
-    mesh.visual = trimesh.visual.TextureVisuals(uv=uv)
-    return mesh
+    return TriangleMesh(v, np.array([[0, 1, 2], [0, 2, 3]]), uv=uv, is_convex=False)
+
+
+def box_mesh(size, center) -> TriangleMesh:
+    """An axis-aligned box of ``size`` (3,) centred at ``center`` (3,): 8 vertices, 12 outward
+    triangles (trimesh.creation.box's layout), closed and convex, no uv."""
+    v = _BOX_CORNERS * np.asarray(size, dtype=np.float64) + np.asarray(center, dtype=np.float64)
+    return TriangleMesh(v, _BOX_FACES, is_convex=True)
 
 
 def box_face_quads(size, center) -> list[np.ndarray]:
@@ -60,15 +76,13 @@ def box_face_quads(size, center) -> list[np.ndarray]:
     return faces
 
 
-def _rotation_z_to(up: np.ndarray) -> np.ndarray:
-    return trimesh.geometry.align_vectors([0, 0, 1], up)
-
-
-def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) -> trimesh.Trimesh:
+def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) -> TriangleMesh | trimesh.Trimesh:
     if shape.box is not None:
-        m = trimesh.creation.box(extents=shape.box.size)
-        m.apply_translation(shape.box.center)
-        return m
+        return box_mesh(shape.box.size, shape.box.center)
+    if shape.quad is not None:
+        return quad_mesh(shape.quad.corners)
+    import trimesh  # the loader of files and the builder of spheres and cylinders (see above)
+
     if shape.sphere is not None:
         m = trimesh.creation.icosphere(subdivisions=shape.sphere.subdivisions, radius=shape.sphere.radius)
         m.apply_translation(shape.sphere.center)
@@ -76,11 +90,9 @@ def _shape_mesh(shape: ShapeSpec, up: np.ndarray, base_dir: Path, where: str) ->
     if shape.cylinder is not None:
         c = shape.cylinder
         m = trimesh.creation.cylinder(radius=c.radius, height=c.height, sections=c.sections)
-        m.apply_transform(_rotation_z_to(up))
+        m.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], up))
         m.apply_translation(c.center)
         return m
-    if shape.quad is not None:
-        return quad_mesh(shape.quad.corners)
     path = resolve_file(base_dir, shape.mesh.file, f"{where}.mesh.file")
     # numpy's overflow warnings on hostile files would add lines to the one-line error
     with np.errstate(all="ignore"):

@@ -10,7 +10,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 __all__ = ["smoke_density", "load_density_file", "MAX_DENSITY_CELLS"]
 
@@ -30,6 +29,8 @@ def smoke_density(resolution: int, seed: int = 0, octaves: int = 4, up_axis: int
         raise ValueError(f"smoke resolution must be >= 4, got {resolution}")
     if octaves < 1:
         raise ValueError(f"smoke octaves must be >= 1, got {octaves}")
+    from scipy import ndimage  # here, not at the top: rig.build imports this module for every scene (~1 s)
+
     rng = np.random.default_rng(seed)
     r = int(resolution)
     noise = np.zeros((r, r, r))

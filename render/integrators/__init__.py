@@ -1,8 +1,9 @@
 """The integrators: Monte Carlo estimators of the pixel measurement, chosen from a scene's effects.
 
 One module per integrator (pbrt-v4's ``Integrator::Create``, Mitsuba's one plugin a file), each
-with its options (``Options``, one documented line per field) and ``render_result``; the plain
-registry :data:`INTEGRATORS` maps names to them. In Heckbert's notation (render.effects):
+with its options (``Options``, one documented line per field) and ``render_result``; the lazy
+registry :data:`INTEGRATORS` maps names to them (a module is imported on first lookup). In
+Heckbert's notation (render.effects):
 
 * ``direct`` (:mod:`.direct`, compiled): L D E and L D S* E / L S* E: camera rays follow mirror
   and glass, light gathered at the first diffuse vertex by NEE and one BSDF sample (MIS).
@@ -42,13 +43,13 @@ Usage (what ``lumigraph reference`` calls)::
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
 
 from ..camera import Camera
 from ..effects import scene_effects
 from ..film import RenderResult, group_ranges, merge_results
 from ..scene import Scene
-from . import bdpt, direct, irradiance_cache, path, pssmlt, sppm, volpath
 from .choice import INTEGRATOR_EFFECTS, SMALL_SOURCE_SR, choose_integrator
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, parse_sample_range
@@ -58,28 +59,79 @@ __all__ = [
     "INTEGRATORS", "INTEGRATOR_OPTIONS", "INTEGRATOR_EFFECTS", "SMALL_SOURCE_SR",
 ]
 
-#: name -> integrator module; each has ``Options`` (a frozen dataclass of its options, built from
-#: RenderSettings) and ``render_result(scene, camera, settings, options, sample_range, effects,
-#: prepared, progress)``; sppm and pssmlt also ``GROUPS`` (their independent groups)
-INTEGRATORS = {
-    "direct": direct,
-    "path": path,
-    "volpath": volpath,
-    "bdpt": bdpt,
-    "sppm": sppm,
-    "pssmlt": pssmlt,
-    "irradiance_cache": irradiance_cache,
-}
-#: name -> the integrator's options (one hop from here to every option and its documentation)
-INTEGRATOR_OPTIONS = {
-    "direct": direct.Options,
-    "path": path.Options,
-    "volpath": volpath.Options,
-    "bdpt": bdpt.Options,
-    "sppm": sppm.Options,
-    "pssmlt": pssmlt.Options,
-    "irradiance_cache": irradiance_cache.Options,
-}
+# The registry is lazy: an integrator's module (its numba kernels, and scipy.spatial for the
+# irradiance cache) is imported when that integrator is first looked up, not when the package is,
+# so a render with one integrator pays for that one (start-up cost, issue 16). Each loader is a
+# plain function-level import (no importlib: the import graph stays readable from the source).
+def _direct():
+    from . import direct
+    return direct
+
+
+def _path():
+    from . import path
+    return path
+
+
+def _volpath():
+    from . import volpath
+    return volpath
+
+
+def _bdpt():
+    from . import bdpt
+    return bdpt
+
+
+def _sppm():
+    from . import sppm
+    return sppm
+
+
+def _pssmlt():
+    from . import pssmlt
+    return pssmlt
+
+
+def _irradiance_cache():
+    from . import irradiance_cache
+    return irradiance_cache
+
+
+class _LazyRegistry(Mapping):
+    """A read-only mapping name -> value whose value is computed (an import) on first lookup.
+    Its keys, their order and ``len`` need no import; ``items()``/``values()`` import them all."""
+
+    def __init__(self, loaders: dict, attribute: str | None = None):
+        self._loaders, self._attribute = loaders, attribute
+
+    def __getitem__(self, name: str):
+        module = self._loaders[name]()  # KeyError for an unknown name, as a dict
+        return module if self._attribute is None else getattr(module, self._attribute)
+
+    def __contains__(self, name) -> bool:  # Mapping's default would import the module to answer
+        return name in self._loaders
+
+    def __iter__(self):
+        return iter(self._loaders)
+
+    def __len__(self) -> int:
+        return len(self._loaders)
+
+    def __repr__(self) -> str:
+        return f"<lazy registry of {', '.join(self._loaders)}>"
+
+
+_LOADERS = {"direct": _direct, "path": _path, "volpath": _volpath, "bdpt": _bdpt, "sppm": _sppm,
+            "pssmlt": _pssmlt, "irradiance_cache": _irradiance_cache}
+#: name -> integrator module (imported on first lookup); each has ``Options`` (a frozen dataclass
+#: of its options, built from RenderSettings) and ``render_result(scene, camera, settings, options,
+#: sample_range, effects, prepared, progress)``; sppm, pssmlt and irradiance_cache also ``GROUPS``
+#: (their independent groups)
+INTEGRATORS: Mapping = _LazyRegistry(_LOADERS)
+#: name -> the integrator's options (one hop from here to every option and its documentation;
+#: imports that integrator's module on lookup)
+INTEGRATOR_OPTIONS: Mapping = _LazyRegistry(_LOADERS, "Options")
 
 
 def render(scene: Scene, camera: Camera, settings: RenderSettings = RenderSettings(),
