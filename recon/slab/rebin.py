@@ -28,7 +28,7 @@ import numpy as np
 from render.camera import Camera
 from render.lightfield import LightSlab, SlabGeometry, create_slab_arrays, write_slab_index
 
-from .rebin_kernels import blend_rays
+from .rebin_kernels import blend_rays, splat_depth_images
 
 __all__ = ["SourceView", "RebinConfig", "RebinStats", "point_cloud", "splat_depth", "rebin_slabs"]
 
@@ -157,11 +157,23 @@ def _fill_single_holes(z: np.ndarray) -> np.ndarray:
 
 
 def splat_depth(geom: SlabGeometry, points: np.ndarray) -> np.ndarray:
-    """(Nv, Nu, Nt, Ns) float32 proxy depth of every slab ray (z-buffered point splats, 0 = none)."""
-    nu, nv, ns, nt = geom.shape
+    """(Nv, Nu, Nt, Ns) float32 proxy depth of every slab ray (z-buffered point splats, 0 = none;
+    compiled: :func:`recon.slab.rebin_kernels.splat_depth_images`, :func:`splat_depth_numpy` is its reference)."""
+    q = _slab_frame_points(geom, points)
+    return splat_depth_images(q, geom.shape, geom.uv_size, geom.distance, geom.st_offset, geom.st_size)
+
+
+def _slab_frame_points(geom: SlabGeometry, points: np.ndarray) -> np.ndarray:
+    """(P', 3) float64 ``points`` in the slab's frame, those in front of the uv plane, nearest first."""
     q = (np.asarray(points, np.float64) - geom.uv_corners[0]) @ geom.rotation.T
     q = q[q[:, 2] > 1e-6 * geom.distance]
-    q = q[np.argsort(q[:, 2], kind="stable")]       # nearest first: the first splat per pixel wins
+    return q[np.argsort(q[:, 2], kind="stable")]       # nearest first: the first splat per pixel wins
+
+
+def splat_depth_numpy(geom: SlabGeometry, points: np.ndarray) -> np.ndarray:
+    """:func:`splat_depth` in numpy, one uv sample at a time: the reference the kernel is tested against."""
+    nu, nv, ns, nt = geom.shape
+    q = _slab_frame_points(geom, points)
     D = geom.distance
     (sx0, sy0), (ws, ht) = geom.st_offset, geom.st_size
     mag = (D / q[:, 2])[:, None]

@@ -2,7 +2,7 @@
 
 The numpy version materializes (rays, views, 3) arrays per uv sample: at the capture's pixel
 footprint (a quarter-billion slab rays on the default scene) it ran for more than half an hour.
-This kernel does the same work per ray in registers: the direction cosine to every view, the
+This module does the same work per ray in registers: the direction cosine to every view, the
 ``candidates`` best kept by insertion, the visibility test against each candidate's depth map,
 the unstructured lumigraph's weights and the bilinear samples. It is compiled with ``nogil``, so
 :func:`blend_rays` splits the rays over threads and both cores work.
@@ -19,7 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numba import njit
 
-__all__ = ["blend_rays"]
+__all__ = ["blend_rays", "splat_depth_images"]
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -114,6 +114,64 @@ def _blend_range(lo, hi, P, r, rgb, depth, centres, w2c, fx, fy, cx, cy, m, k, t
                 top = (1.0 - ax) * rgb[view, y0, x0, ch] + ax * rgb[view, y0, x0 + 1, ch]
                 bottom = (1.0 - ax) * rgb[view, y0 + 1, x0, ch] + ax * rgb[view, y0 + 1, x0 + 1, ch]
                 out[n, ch] += np.float32(wc * ((1.0 - ay) * top + ay * bottom))
+
+
+@njit(**_JIT)
+def _splat_range(lo, hi, q, nu, nv, uv_w, uv_h, D, sx0, sy0, ws, ht, out, scratch):
+    """Proxy depth images out[j, i] (nt, ns) float32 of the uv samples lo..hi-1 (row-major over
+    (nv, nu)): points ``q`` (P, 3) in the slab frame, nearest first, splatted through each uv
+    sample onto the st plane (the first point per st sample wins); then single holes closed."""
+    nt, ns = out.shape[2], out.shape[3]
+    for flat in range(lo, hi):
+        j, i = flat // nu, flat % nu
+        ux, uy = (i + 0.5) / nu * uv_w, (j + 0.5) / nv * uv_h
+        scratch[:] = 0.0
+        for p in range(q.shape[0]):
+            mag = D / q[p, 2]
+            col = math.floor(((ux + mag * (q[p, 0] - ux)) - sx0) / ws * ns)
+            row = math.floor(((uy + mag * (q[p, 1] - uy)) - sy0) / ht * nt)
+            if col >= 0 and col < ns and row >= 0 and row < nt:
+                r, c = int(row), int(col)
+                if scratch[r, c] == 0.0:
+                    scratch[r, c] = q[p, 2]
+        # an empty sample with at least 6 of 8 non-empty neighbours takes the nearest of them
+        for r in range(nt):
+            for c in range(ns):
+                z = scratch[r, c]
+                if z == 0.0:
+                    count, nearest = 0, np.inf
+                    for dr in range(-1, 2):
+                        for dc in range(-1, 2):
+                            rr, cc = r + dr, c + dc
+                            if (dr != 0 or dc != 0) and 0 <= rr < nt and 0 <= cc < ns and scratch[rr, cc] > 0:
+                                count += 1
+                                nearest = min(nearest, scratch[rr, cc])
+                    if count >= 6:
+                        z = nearest
+                out[j, i, r, c] = z
+
+
+def splat_depth_images(q: np.ndarray, shape: tuple[int, int, int, int], uv_size, distance: float, st_offset, st_size,
+                       threads: int | None = None) -> np.ndarray:
+    """(Nv, Nu, Nt, Ns) float32 proxy depth for a slab of ``shape`` (Nu, Nv, Ns, Nt): ``q`` (P, 3)
+    float64 surface points in the slab's frame (uv corner at the origin, z towards the st plane at
+    ``distance``), sorted nearest first, with z > 0. uv samples are split over ``threads``."""
+    nu, nv, ns, nt = shape
+    out = np.zeros((nv, nu, nt, ns), np.float32)
+    q = np.ascontiguousarray(q, np.float64)
+    threads = max(1, min(int(threads or os.cpu_count() or 1), nu * nv))
+    bounds = np.linspace(0, nu * nv, threads + 1).astype(np.int64)
+
+    def run(lo: int, hi: int) -> None:
+        _splat_range(lo, hi, q, nu, nv, float(uv_size[0]), float(uv_size[1]), float(distance),
+                     float(st_offset[0]), float(st_offset[1]), float(st_size[0]), float(st_size[1]),
+                     out, np.zeros((nt, ns), np.float32))
+    if threads == 1:
+        run(0, nu * nv)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(lambda b: run(*b), zip(bounds[:-1], bounds[1:])))
+    return out
 
 
 def blend_rays(P: np.ndarray, r: np.ndarray, rgb: np.ndarray, depth: np.ndarray, centres: np.ndarray,
