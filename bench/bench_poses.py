@@ -21,9 +21,11 @@ Scale (``--views``, the default 56,224,1000): the default scene at 1280x960 with
 :data:`LAYOUTS` (56: its own rings of 24 + 24 and 8 held out; 224: 96 + 96 and 32; 1000: three
 train rings of 320 at 20, 35 and 50 deg and 40 held out), captured, then posed by the ``poses``
 stage (COLMAP, known intrinsics) with each of ``--configs`` (``auto`` = the stage's defaults, or
-``MATCHER+MAPPER``). Writes ``bench/results/bench_poses_scale.json``: per run the extract /
+``MATCHER+MAPPER[+oOCTAVE]``, :func:`colmap_config`). Writes ``bench/results/bench_poses_scale.json``: per run the extract /
 match / map seconds, pairs, registered views and rotation error, with the 1-minute load
-average before and after (the machine is shared: times are only comparable within a run).
+average before and after (the machine is shared: times are only comparable within a run), and
+``growth``: seconds per view and the exponent of time against views between consecutive counts
+(1 = linear).
 """
 from __future__ import annotations
 
@@ -118,7 +120,6 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
     from pipeline.artifacts import BadInput
     from pipeline.cli import main as cli
     from pipeline.stages.poses import PosesConfig, run_poses
-    from recon.poses import ColmapConfig
 
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-poses-scale-") as tmp:
@@ -134,8 +135,7 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                     raise SystemExit(f"capture of {views} views failed")
             capture_s = time.perf_counter() - t0
             for cfg_name in configs:
-                matcher, mapper = ("auto", "auto") if cfg_name == "auto" else cfg_name.split("+")
-                cfg = PosesConfig(colmap=ColmapConfig(matcher=matcher, mapper=mapper))
+                cfg = PosesConfig(colmap=colmap_config(cfg_name))
                 load_before = os.getloadavg()[0]
                 t0 = time.perf_counter()
                 try:
@@ -146,7 +146,8 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                     m, reason = {}, str(exc)
                 row = {"views": views, "config": cfg_name, "matcher": m.get("matcher"), "mapper": m.get("mapper"),
                        "pairs": m.get("pairs"), "extract_s": m.get("extract_time_s"), "match_s": m.get("match_time_s"),
-                       "map_s": m.get("map_time_s"), "poses_wall_s": round(time.perf_counter() - t0, 1),
+                       "map_s": m.get("map_time_s"), "refine_s": m.get("refine_time_s"),
+                       "first_octave": m.get("first_octave"), "poses_wall_s": round(time.perf_counter() - t0, 1),
                        "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
                        "rotation_error_deg_mean": m.get("rotation_error_deg_mean"),
                        "rotation_error_deg_max": m.get("rotation_error_deg_max"),
@@ -154,9 +155,44 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                        "load_avg_1min_before": round(load_before, 2), "load_avg_1min_after": round(os.getloadavg()[0], 2)}
                 rows.append(row)
                 print(row, flush=True)
-                write_result("bench_poses_scale", {"rows": rows, "layouts": {str(k): v for k, v in LAYOUTS.items()},
+                write_result("bench_poses_scale", {"rows": rows, "growth": growth(rows),
+                                                   "layouts": {str(k): v for k, v in LAYOUTS.items()},
                                                    "note": "one run per cell, poses stage wall time; 1280x960, "
-                                                           "known intrinsics; shared 2-core machine (load average)"})
+                                                           "known intrinsics; shared 2-core machine (load average): "
+                                                           "growth exponents divide out a load shared by the runs "
+                                                           "compared, not a load that changed between them"})
+
+
+def colmap_config(name: str):
+    """``auto`` (the stage's defaults) or ``MATCHER+MAPPER[+oOCTAVE]`` (e.g. ``capture_order+global+o0``:
+    SIFT's first octave 0) -> ColmapConfig."""
+    from recon.poses import ColmapConfig
+
+    if name == "auto":
+        return ColmapConfig()
+    matcher, mapper, *rest = name.split("+")
+    octave = {"first_octave": int(rest[0].removeprefix("o"))} if rest else {}
+    return ColmapConfig(matcher=matcher, mapper=mapper, **octave)
+
+
+def growth(rows: list[dict]) -> list[dict]:
+    """How each step's time grows with the views, per config: seconds per view at every view count
+    and the exponent ``b`` of ``time ~ views^b`` between consecutive counts (log ratio of times over
+    log ratio of views; 1 = linear, 2 = quadratic), for extract, match, map and the stage's wall
+    time, with the pairs' exponent beside them (the matcher's own growth)."""
+    import math
+
+    out = []
+    for cfg in dict.fromkeys(r["config"] for r in rows):
+        runs = sorted((r for r in rows if r["config"] == cfg and r["failure"] is None), key=lambda r: r["views"])
+        for a, b in zip(runs, runs[1:]):
+            entry = {"config": cfg, "views": [a["views"], b["views"]]}
+            for key in ("pairs", "extract_s", "match_s", "map_s", "poses_wall_s"):
+                if a.get(key) and b.get(key):
+                    entry[f"{key}_per_view"] = [round(a[key] / a["views"], 3), round(b[key] / b["views"], 3)]
+                    entry[f"{key}_exponent"] = round(math.log(b[key] / a[key]) / math.log(b["views"] / a["views"]), 2)
+            out.append(entry)
+    return out
 
 
 LENS_FIELDS = ("calibration", "camera_model", "camera_model_note", "views_registered", "focal_rel", "principal_point_px",

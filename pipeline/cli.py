@@ -365,7 +365,11 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point: bad input and usage errors exit 2 with one line on stderr; bugs surface with
     exit 1 and their traceback."""
     try:
-        app(args=argv, standalone_mode=False, prog_name="lumigraph")
+        # typer turns Ctrl-C (and the poses stage's SIGTERM) into Exit(130), which click in
+        # non-standalone mode returns rather than raises: commands return None otherwise
+        code = app(args=argv, standalone_mode=False, prog_name="lumigraph")
+        if isinstance(code, int) and code:
+            return code
     except _bad_input_types() as exc:  # evaluated when an exception arrives, after the verb's imports
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"lumigraph: error: {msg}", file=sys.stderr)

@@ -24,7 +24,8 @@ self_check_folded / self_check_reason / max_azimuth_gap_deg / duplicate_pairs (n
 used), projection_error_px_{max,view_max_mean,mean} and lens_projection_error_px_{max,mean} (the
 whole camera and the lens alone against the truth, :func:`recon.poses.projection_error`),
 estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
-options, the matcher and mapper that ran, pairs matched and {extract,match,map}_time_s, the
+options, the matcher and mapper that ran, pairs matched and {extract,match,map,refine}_time_s
+(refine: the part of map after the mapper), first_octave (SIFT's, as resolved), the
 calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
 constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre
 the features reach; the ``*_covered`` projection maxima are within it), rational_refit_px and,
@@ -50,15 +51,21 @@ valid capture, never damaged input.
 COLMAP pairs views by the capture's shooting order (``capture_order.json``: ring, frame index,
 loop; :mod:`recon.poses.pairing`) above ``ColmapConfig.exhaustive_max_images`` views. Its work
 folder (database, resized images: ~0.5 GB at 1000 views) lives inside the stage's atomic
-partial folder, so an interrupted run leaves nothing in the system's temp folder; a killed
-one leaves it in the ``.<name>.partial-<pid>-*`` folder that the next run of the stage removes.
+partial folder, never in the system's temp folder. COLMAP runs in a child process
+(:mod:`recon.poses.colmap_process`): a stopped run (Ctrl-C, or SIGTERM, which the stage turns
+into the same KeyboardInterrupt; exit 130) kills it and removes the partial folder with the
+work folder; only SIGKILL leaves the ``.<name>.partial-<pid>-*`` folder, which the next run of
+the stage removes.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import shutil
+import signal
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -66,8 +73,10 @@ import cv2
 import numpy as np
 
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, ViewOrder,
-                         estimate_charuco, estimate_colmap, intrinsics_error, projection_error, score_cameras,
+                         estimate_charuco, intrinsics_error, projection_error, score_cameras,
                          turntable_self_check)
+from recon.poses.colmap import resolve_first_octave
+from recon.poses.colmap_process import estimate_colmap_stoppable
 from render.camera import Camera
 from render.camera_io import write_blender_transforms_json, write_cameras_json, write_colmap_text
 
@@ -273,6 +282,30 @@ def check_poses(poses_dir: Path, capture_dir: Path, cameras: list[Camera], split
     return est
 
 
+@contextmanager
+def _sigterm_interrupts(colmap: bool):
+    """SIGTERM raises KeyboardInterrupt (as Ctrl-C does) inside the block, so the stage's
+    ``finally`` clauses remove COLMAP's work folder and the partial folder (~0.5 GB at 1000 views)
+    instead of the process dying with them on disk. The previous handler is restored on exit; a
+    no-op off the main thread (signal handlers can only be set there). ``colmap``: pycolmap is
+    imported first, since its import installs glog's failure handler for SIGTERM (a stack dump,
+    then death), which would replace ours if it came later."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    if colmap:
+        import pycolmap  # noqa: F401  (glog's handlers first, ours over them)
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def _prefixed(prefix: str, d: dict) -> dict:
     return {f"{prefix}{k}": v for k, v in d.items()}
 
@@ -299,7 +332,8 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
     elif method == "colmap":
         cfg = config.colmap
         metrics.update(known_intrinsics=cfg.known_intrinsics, image_scale=cfg.image_scale,
-                       max_features=cfg.max_features, calibration=config.calibration)
+                       max_features=cfg.max_features, first_octave=resolve_first_octave(cfg, len(cap.images)),
+                       calibration=config.calibration)
         if workdir is None:
             raise ValueError("the colmap method needs a work folder")
         k_given = k_true
@@ -308,7 +342,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
             metrics.update(_prefixed("charuco_", board))
             cfg = replace(cfg, known_intrinsics=True)
         try:
-            res = estimate_colmap(cap.images, k_given, Path(workdir), cfg, cap.order)
+            res = estimate_colmap_stoppable(cap.images, k_given, Path(workdir), cfg, cap.order)
         except ReconstructionError as exc:
             metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
             raise PoseFailure(str(exc), metrics) from None
@@ -423,7 +457,7 @@ def run_poses(capture_dir: Path, method: str, out: Path, config: PosesConfig = P
         manifest.add_input(cap.folder / "targets.json")
     failure = None
     # the work folder lives in the partial folder: no COLMAP leftovers outside it (module docstring)
-    with progress_bar(quiet) as bar, atomic_stage(out, "poses", overwrite) as tmp:
+    with _sigterm_interrupts(method == "colmap"), progress_bar(quiet) as bar, atomic_stage(out, "poses", overwrite) as tmp:
         task = bar.add_task(f"poses {method}", total=1, info=f"{len(cap.cameras)} views")
         try:
             cams, metrics, rec = estimate_poses(cap, method, config, workdir=tmp / "colmap-work")

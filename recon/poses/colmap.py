@@ -58,6 +58,9 @@ class ColmapConfig:
         the richest the views constrain (a likelihood-ratio test per step).
     image_scale: resize factor applied before feature extraction (1 = capture resolution).
     max_features: SIFT features per image.
+    first_octave: SIFT's first octave: -1 doubles the image first (COLMAP's default: finer
+        features, 4x the pixels to filter), 0 starts at the image's own size; None (auto): -1
+        below ``global_min_images`` images, 0 from there on (:func:`resolve_first_octave`).
     matcher: ``exhaustive`` (every pair), ``capture_order`` (the shooting order's pairs,
         :mod:`recon.poses.pairing`: neighbours within each ring with loop closure, same-phase
         links between rings; needs the order), ``sequential`` (neighbours in name order, loop
@@ -106,6 +109,7 @@ class ColmapConfig:
     known_intrinsics: bool = True
     image_scale: float = 1.0
     max_features: int = 8192
+    first_octave: int | None = None
     matcher: Literal["auto", "exhaustive", "capture_order", "sequential"] = "auto"
     exhaustive_max_images: int = 150
     sequential_overlap: int = 12
@@ -120,6 +124,8 @@ class ColmapConfig:
     def __post_init__(self) -> None:
         if not 0.05 <= self.image_scale <= 4.0:
             raise ValueError(f"image_scale must be in [0.05, 4], got {self.image_scale}")
+        if self.first_octave is not None and self.first_octave not in (-1, 0, 1):
+            raise ValueError(f"first_octave must be -1, 0 or 1, got {self.first_octave}")
         if self.max_features < 64:
             raise ValueError(f"max_features must be >= 64, got {self.max_features}")
         if self.matcher not in ("auto", "exhaustive", "capture_order", "sequential"):
@@ -145,7 +151,8 @@ class ColmapResult:
     points: (P, 3) float64 sparse points in COLMAP's frame. reprojection_error_px is the mean
     over all observations, in input-resolution pixels. matcher/mapper: what ran (``auto``
     resolved); pairs: image pairs matched; times_s: wall seconds of ``extract``, ``match``,
-    ``map`` (the mapper and the final bundle adjustment).
+    ``map`` (the mapper and the final bundle adjustment) and ``refine`` (the part of ``map``
+    after the mapper: final bundle adjustment, or the lens ladder when self-calibrating).
     """
 
     cameras: list[Camera]
@@ -329,6 +336,14 @@ def resolve_mapper(config: ColmapConfig, n_images: int) -> str:
     return "global" if n_images >= config.global_min_images else "incremental"
 
 
+def resolve_first_octave(config: ColmapConfig, n_images: int) -> int:
+    """SIFT's first octave ``None`` stands for (ColmapConfig.first_octave): -1 (the image
+    doubled first, COLMAP's default) below ``global_min_images`` images, 0 from there on."""
+    if config.first_octave is not None:
+        return config.first_octave
+    return -1 if n_images < config.global_min_images else 0
+
+
 def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
               config: ColmapConfig, order: Sequence[ViewOrder] | None) -> ColmapResult:
     import pycolmap
@@ -371,6 +386,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = config.num_threads
     extraction.sift.max_num_features = config.max_features
+    extraction.sift.first_octave = resolve_first_octave(config, len(names))
     extraction.use_gpu = False
     pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -440,6 +456,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     rec = max(models.values(), key=lambda m: m.num_reg_images())
 
     lens_steps, lens_note = [], ""
+    t_refine = time.perf_counter()
     if not fixed:
         rec, lens_steps, lens_note = calibrate_lens(rec, workdir, config.camera_model,
                                                     max(config.final_ba_iterations, 1))
@@ -447,6 +464,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         _bundle_adjust(rec, workdir, config.final_ba_iterations, False, False, False)
 
     times["map"] = time.perf_counter() - t0
+    times["refine"] = time.perf_counter() - t_refine  # of map: the final bundle adjustment / lens ladder
     cameras, registered = [], set()
     for img in rec.images.values():
         if not img.has_pose:
