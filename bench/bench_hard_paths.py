@@ -17,8 +17,8 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   The fog scene (the same floor and ball inside a homogeneous scattering fog) has ``volpath``
   only: bdpt, pssmlt and sppm do not render media (docs/architecture.md). Plot:
   hard_paths_rmse_time.svg (log10 RMSE vs time).
-* which strategy wins where (``source_size_sweep``): for sources of side 0.4, 0.2, 0.1 and
-  0.05 m at equal power, bdpt's and pssmlt's predicted RMSE at equal time over path's,
+* which strategy wins where (``source_size_sweep``): for sources of side 1.6, 0.8, 0.4, 0.2, 0.1
+  and 0.05 m at equal power, bdpt's and pssmlt's predicted RMSE at equal time over path's,
   sqrt(t v / (t_path v_path)) from each render's own variance estimate, over the image and over
   the caustic region (auto's SMALL_SOURCE_SR comes from here). Path finds a caustic only
   when a BSDF-sampled ray leaving the floor through the ball hits the source, so its variance
@@ -33,11 +33,13 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   SPPM_PHOTONS_PER_S per pass, and its numpy reference.
 
 Run: ``.venv/bin/python -m bench.bench_hard_paths`` (``--quick`` for a smoke run;
-``--samples-per-s`` for the samples-per-second section alone).
+``--samples-per-s`` for the samples-per-second section alone; ``--sweep`` for the source-size
+sweep alone, with the solid angle where bdpt stops winning: hard_paths_source_sweep.json).
 """
 from __future__ import annotations
 
 import csv
+import os
 import sys
 import time
 
@@ -153,8 +155,9 @@ def _plot(rows: list[dict], path) -> None:
 
 #: the issue's "small source": a 0.1 m square at 3 m (0.2: the yaml's 0.4 m source)
 SMALL_SOURCE = 0.05
-#: light half-sizes of the source-size sweep (same power at each size)
-SWEEP_HALVES = (0.2, 0.1, 0.05, 0.025)
+#: light half-sizes of the source-size sweep (same power at each size): with bdpt compiled it wins
+#: glass_caustic.yaml's 0.4 m source too, so the sweep reaches up to sources where path wins again
+SWEEP_HALVES = (0.8, 0.4, 0.2, 0.1, 0.05, 0.025)
 #: spp per integrator in the sweep (full, quick): predicted equal-time RMSE from variance x time
 SWEEP_SPP = {"path": (4096, 64), "bdpt": (2048, 32), "pssmlt": (128, 8)}
 
@@ -186,6 +189,21 @@ def _equal_time(rows: list[dict], scene: str) -> tuple[dict, list[dict]]:
                for r in rows if r["scene"] == scene and r["integrator"] != "path"
                and min(t_path) <= r["time_s"] <= max(t_path)]
     return summary, per_run
+
+
+def crossover_solid_angle(sweep: list[dict], integrator: str = "bdpt") -> float | None:
+    """The emitter solid angle (sr) below which ``integrator``'s predicted whole-image RMSE at equal
+    time beats path's: the geometric mean of the two neighbouring sweep sizes where the ratio
+    crosses 1 (the sweep's sizes sorted by solid angle; the largest size where it still wins), or
+    None when it wins at none of them; +inf when it wins at every size."""
+    rows = sorted(sweep, key=lambda r: r["emitter_solid_angle_sr"])
+    wins = [r[f"{integrator}_rmse_ratio_over_path_at_equal_time"] < 1.0 for r in rows]
+    if not wins[0]:
+        return None
+    for k in range(1, len(rows)):
+        if not wins[k]:
+            return float(np.sqrt(rows[k - 1]["emitter_solid_angle_sr"] * rows[k]["emitter_solid_angle_sr"]))
+    return float("inf")
 
 
 def _source_sweep(cam: Camera, quick: bool) -> list[dict]:
@@ -367,5 +385,12 @@ if __name__ == "__main__":
     if "--samples-per-s" in sys.argv:  # this section alone: bench/results/hard_paths_samples_per_s.json
         write_result("hard_paths_samples_per_s", samples_per_second(camera(24 if "--quick" in sys.argv else 48),
                                                                     "--quick" in sys.argv))
+    elif "--sweep" in sys.argv:  # the source-size sweep alone (auto's crossover): hard_paths_source_sweep.json
+        load_before = os.getloadavg()
+        t0 = time.perf_counter()
+        sweep = _source_sweep(camera(24 if "--quick" in sys.argv else 48), "--quick" in sys.argv)
+        write_result("hard_paths_source_sweep", {"load_average_before": load_before, "load_average_after": os.getloadavg(),
+                                                 "total_s": round(time.perf_counter() - t0, 1),
+                                                 "crossover_sr": crossover_solid_angle(sweep), "sweep": sweep})
     else:
         main(quick="--quick" in sys.argv)

@@ -24,11 +24,13 @@ _LIGHT_TRACING = frozenset({"sppm", "bdpt"})
 _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interreflection", "caustics", "media"})
 
 #: emitters subtending less than this solid angle (sr) from the scene's centre make caustics hard
-#: for path tracing. bench_hard_paths' source-size sweep (glass ball under a square source 2.35 m
-#: from the scene's centre, same power) measured bdpt's equal-time image RMSE at 2.8x path's for
-#: sources of 0.4 and 0.2 m (0.029, 0.0072 sr; in the caustic alone 0.63x, 0.27x) and 0.14x for
-#: 0.1 m (0.0018 sr): the threshold sits between the last two, at their geometric mean
-SMALL_SOURCE_SR = 0.0036
+#: for path tracing. bench_hard_paths' source-size sweep with both integrators compiled (``--sweep``:
+#: glass ball under a square source 2.35 m from the scene's centre, same power, 48 x 48, load
+#: 13-17) predicts bdpt's equal-time image RMSE at 0.66x path's for glass_caustic.yaml's 0.4 m source
+#: (0.029 sr; 0.21x in the caustic), 0.53x, 0.21x, 0.02x for 0.2, 0.1, 0.05 m, and 1.12x for a
+#: 0.8 m source (0.116 sr), 1.95x for 1.6 m (0.46 sr): the threshold sits at the geometric mean of
+#: 0.029 and 0.116 sr. (With the numpy bdpt it was 0.0036 sr.)
+SMALL_SOURCE_SR = 0.058
 
 
 def choose_integrator(effects, requested: str = "auto", has_delta_lights: bool = False,
