@@ -31,7 +31,8 @@ import numpy as np
 from numba import njit
 
 from .. import embree_direct as _edirect
-from .path_kernels import _GOLDEN, _M2, _albedo, _frame, _mix64, _pick, _sample_area, _sample_delta
+from .path_kernels import (_GOLDEN, _M2, _albedo, _facing_normal, _frame, _fresnel_dielectric, _hit_point, _mix64,
+                           _pick, _sample_area, _sample_delta)
 from .path_kernels import _offset as _eps
 from .path_kernels import _uniform as _u
 
@@ -382,9 +383,7 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
         obj = tri_obj[t]
         kind = kinds[obj]
         u, v = np.float64(hu[r]), np.float64(hv[r])
-        px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
-        py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
-        pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
+        px, py, pz = _hit_point(tris, t, u, v)
         ngx, ngy, ngz = tris[t, 9], tris[t, 10], tris[t, 11]
         wx, wy, wz = px - V[k, i - 1, _P], py - V[k, i - 1, _P + 1], pz - V[k, i - 1, _P + 2]
         d2 = max(wx * wx + wy * wy + wz * wz, floor2)
@@ -401,10 +400,7 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
                 conv = abs(V[k, i - 1, _NG] * dx + V[k, i - 1, _NG + 1] * dy + V[k, i - 1, _NG + 2] * dz) / d2
             else:
                 conv = 1.0 / d2
-        if kind != DIELECTRIC and dng > 0.0:
-            nx, ny, nz = -ngx, -ngy, -ngz
-        else:
-            nx, ny, nz = ngx, ngy, ngz
+        nx, ny, nz = _facing_normal(ngx, ngy, ngz, -dng, kind)
         lamb = kind == LAMBERT
         delta = kind == MIRROR or kind == DIELECTRIC
         if lamb and tex[obj, 1] != 0:
@@ -458,18 +454,7 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
             w0, w1, w2 = a0, a1, a2
         else:  # smooth dielectric (render.bsdf.dielectric_sample)
             ior = iors[obj]
-            ci = min(max(woz, -1.0), 1.0)
-            eta_f = 1.0 / ior if ci < 0.0 else ior
-            aci = abs(ci)
-            s2 = (1.0 - aci * aci) / (eta_f * eta_f)
-            if s2 >= 1.0:
-                F = 1.0
-            else:
-                ct = math.sqrt(max(0.0, 1.0 - s2))
-                rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
-                rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
-                F = 0.5 * (rpa * rpa + rpe * rpe)
-            eta = ior if woz >= 0.0 else 1.0 / ior
+            F, eta = _fresnel_dielectric(woz, ior)
             if _u(key, base) < F:
                 lx, ly, lz = -wox, -woy, woz
                 spdf = F

@@ -366,6 +366,51 @@ def _albedo(albedo, tex, uv, d, obj, t, u, v):
 
 
 @njit(inline="always", **_JIT)
+def _hit_point(tris, t, u, v):
+    """World position at barycentrics (u, v) of packed triangle ``t`` (``tris`` rows: corner 0,
+    edges 1 and 2, geometric normal; render.accel.Geometry): corner 0 + u e1 + v e2."""
+    return (tris[t, 0] + u * tris[t, 3] + v * tris[t, 6], tris[t, 1] + u * tris[t, 4] + v * tris[t, 7],
+            tris[t, 2] + u * tris[t, 5] + v * tris[t, 8])
+
+
+@njit(inline="always", **_JIT)
+def _facing_normal(ngx, ngy, ngz, cos_o, kind):
+    """The shading normal: the geometric one flipped to face wo (``cos_o`` < 0: wo on its back)
+    on two-sided materials, kept outward on dielectrics (their inside matters for eta)."""
+    if cos_o < 0.0 and kind != DIELECTRIC:
+        return -ngx, -ngy, -ngz
+    return ngx, ngy, ngz
+
+
+@njit(inline="always", **_JIT)
+def _fresnel_dielectric(woz, ior):
+    """Unpolarised Fresnel reflectance of a smooth dielectric (render.bsdf.fresnel_dielectric)
+    for wo at cosine ``woz`` to the outward normal, and the relative eta across the surface
+    (inside over outside when wo is outside): (F, eta); F = 1 under total internal reflection."""
+    ci = min(max(woz, -1.0), 1.0)
+    eta_f = 1.0 / ior if ci < 0.0 else ior
+    aci = abs(ci)
+    s2 = (1.0 - aci * aci) / (eta_f * eta_f)
+    if s2 >= 1.0:
+        F = 1.0
+    else:
+        ct = math.sqrt(max(0.0, 1.0 - s2))
+        rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
+        rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
+        F = 0.5 * (rpa * rpa + rpe * rpe)
+    return F, (ior if woz >= 0.0 else 1.0 / ior)
+
+
+@njit(inline="always", **_JIT)
+def _lambert_albedo(albedo, tex, uv, d, obj, t, u, v):
+    """A Lambertian object's albedo (3 floats) at a hit: its constant (untextured: ``tex[obj, 1]``
+    is 0) or the texture lookup times it (:func:`_albedo`)."""
+    if tex[obj, 1] == 0:
+        return albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
+    return _albedo(albedo, tex, uv, d, obj, t, u, v)
+
+
+@njit(inline="always", **_JIT)
 def _sample_area(area, k, floor, px, py, pz, u1, u2):
     """LightSet.sample on area entry k (a row of LightSet._packed) from point p:
     (valid, wi (3), dist, Li (3), solid-angle pdf)."""
@@ -573,19 +618,7 @@ def _sample_specular(kind, r0, r1, r2, ior, sampler, key, base, dx, dy, dz, nx, 
         w0, w1, w2 = r0, r1, r2
         spdf = 1.0
     else:
-        # Fresnel (render.bsdf.fresnel_dielectric)
-        ci = min(max(woz, -1.0), 1.0)
-        eta_f = 1.0 / ior if ci < 0.0 else ior
-        aci = abs(ci)
-        s2 = (1.0 - aci * aci) / (eta_f * eta_f)
-        if s2 >= 1.0:
-            F = 1.0
-        else:
-            ct = math.sqrt(max(0.0, 1.0 - s2))
-            rpa = (eta_f * aci - ct) / (eta_f * aci + ct)
-            rpe = (aci - eta_f * ct) / (aci + eta_f * ct)
-            F = 0.5 * (rpa * rpa + rpe * rpe)
-        eta = ior if woz >= 0.0 else 1.0 / ior
+        F, eta = _fresnel_dielectric(woz, ior)
         if _sample(sampler, key, base + 3) < F:
             lx, ly, lz = -wox, -woy, woz
             spdf = F
@@ -664,21 +697,12 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         if depth == cfg.max_depth or kind == EMISSIVE or (cfg.direct and after_diff):
             continue
         u, v = np.float64(hu[i]), np.float64(hv[i])
-        px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
-        py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
-        pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
-        # shading normal: facing wo for two-sided materials, outward for dielectrics
-        if cos_o < 0.0 and kind != DIELECTRIC:
-            nx, ny, nz = -ngx, -ngy, -ngz
-        else:
-            nx, ny, nz = ngx, ngy, ngz
+        px, py, pz = _hit_point(tris, t, u, v)
+        nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
         key = keys[i]
         eps = _offset(px, py, pz, extent)
         if kind == LAMBERT:
-            if tex[obj, 1] == 0:
-                a0, a1, a2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
-            else:
-                a0, a1, a2 = _albedo(albedo, tex, uv, tex_data, obj, t, u, v)
+            a0, a1, a2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             if cfg.nee_any and has_lights:
                 nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
                                  (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,

@@ -39,7 +39,8 @@ import numpy as np
 from numba import njit
 
 from .path_kernels import (_GOLDEN, _INV_PI, _JIT, _M2, _TMAX_CAP, DIELECTRIC, DIRECTIONAL, LAMBERT,
-                           MIRROR, POINT, SAMPLER_INDEPENDENT, SPOT, _albedo, _frame, _mix64, _offset, _pick,
+                           MIRROR, POINT, SAMPLER_INDEPENDENT, SPOT, _facing_normal, _frame, _hit_point,
+                           _lambert_albedo, _mix64, _offset, _pick,
                            _queue_ray, _sample_area, _sample_delta, _sample_specular, _uniform)
 
 __all__ = ["eye_bounce", "add_unoccluded_direct", "photon_keys", "emit_photons", "photon_bounce", "build_grid",
@@ -102,20 +103,12 @@ def eye_bounce(ks, depth, max_depth, inv_fx, prim, tfar, hu, hv, pix, keys, beta
         if kind != LAMBERT and kind != MIRROR and kind != DIELECTRIC:
             continue
         u, v = np.float64(hu[i]), np.float64(hv[i])
-        px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
-        py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
-        pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
-        if cos_o < 0.0 and kind != DIELECTRIC:
-            nx, ny, nz = -ngx, -ngy, -ngz
-        else:
-            nx, ny, nz = ngx, ngy, ngz
+        px, py, pz = _hit_point(tris, t, u, v)
+        nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
         key = keys[i]
         eps = _offset(px, py, pz, extent)
         if kind == LAMBERT:
-            if tex[obj, 1] == 0:
-                a0, a1, a2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
-            else:
-                a0, a1, a2 = _albedo(albedo, tex, uv, tex_data, obj, t, u, v)
+            a0, a1, a2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             w0, w1, w2 = b0 * a0 * _INV_PI, b1 * a1 * _INV_PI, b2 * a2 * _INV_PI
             if not max(max(w0, w1), w2) > 0.0:
                 continue
@@ -301,9 +294,7 @@ def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, idx, beta,
         dx, dy, dz = np.float64(d32[i, 0]), np.float64(d32[i, 1]), np.float64(d32[i, 2])
         ngx, ngy, ngz = tris[t, 9], tris[t, 10], tris[t, 11]
         u, v = np.float64(hu[i]), np.float64(hv[i])
-        px = tris[t, 0] + u * tris[t, 3] + v * tris[t, 6]
-        py = tris[t, 1] + u * tris[t, 4] + v * tris[t, 7]
-        pz = tris[t, 2] + u * tris[t, 5] + v * tris[t, 8]
+        px, py, pz = _hit_point(tris, t, u, v)
         b0, b1, b2 = beta[i, 0], beta[i, 1], beta[i, 2]
         if kind == LAMBERT and depth >= 1:
             s_p[ns, 0], s_p[ns, 1], s_p[ns, 2] = px, py, pz
@@ -315,16 +306,10 @@ def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, idx, beta,
         if depth + 1 >= max_depth:
             continue
         cos_o = -(dx * ngx + dy * ngy + dz * ngz)
-        if cos_o < 0.0 and kind != DIELECTRIC:
-            nx, ny, nz = -ngx, -ngy, -ngz
-        else:
-            nx, ny, nz = ngx, ngy, ngz
+        nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
         key = keys[i]
         if kind == LAMBERT:
-            if tex[obj, 1] == 0:
-                f0, f1, f2 = albedo[obj, 0], albedo[obj, 1], albedo[obj, 2]
-            else:
-                f0, f1, f2 = _albedo(albedo, tex, uv, tex_data, obj, t, u, v)
+            f0, f1, f2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
             r = math.sqrt(u4)
             phi = 2.0 * math.pi * u5

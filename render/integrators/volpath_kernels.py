@@ -49,7 +49,8 @@ from numba import njit
 
 from ..scene import ALPHA_SMOOTH
 from .path_kernels import (DIELECTRIC, EMISSIVE, F_AFTER_DIFF, F_DELTA, LAMBERT, MIRROR, STRAT_BSDF, STRAT_LIGHT,
-                           _albedo, _frame, _mis, _mix64, _offset, _pick, _sample_area, _sample_delta, _uniform)
+                           _albedo, _frame, _hit_point, _mis, _mix64, _offset, _pick, _sample_area, _sample_delta,
+                           _uniform)
 
 __all__ = ["VolConfig", "MediaKernel", "media_kernel", "vol_bounce", "shadow_start", "shadow_media_step",
            "shadow_flush", "surface_eval_local", "surface_sample_local", "hg_pdf_k", "hg_sample_k",
@@ -664,9 +665,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
             g = 0.0
             ngx, ngy, ngz = tris[tri, 9], tris[tri, 10], tris[tri, 11]
             u, v = np.float64(hu[i]), np.float64(hv[i])
-            px = tris[tri, 0] + u * tris[tri, 3] + v * tris[tri, 6]
-            py = tris[tri, 1] + u * tris[tri, 4] + v * tris[tri, 7]
-            pz = tris[tri, 2] + u * tris[tri, 5] + v * tris[tri, 8]
+            px, py, pz = _hit_point(tris, tri, u, v)
             cos_l = -(dx * ngx + dy * ngy + dz * ngz)
             if emits[obj] and (two_sided[obj] or cos_l > 0.0) and not pruned:
                 w = 1.0
