@@ -250,16 +250,29 @@ def report(artifacts_dir: Path = typer.Argument(..., help="a scene's artifacts f
 
 @app.command()
 def study(scene: str = typer.Argument("turntable", help="built-in scene name or path to a scene YAML, or a "
-                                       "lecture study: uniqueness | caching | bias"),
+                                       "lecture study: uniqueness | caching | bias, or pose_tolerance"),
           profile: str = typer.Option("quick", help="quick | full"),
           out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/study)"),
           seed: int = typer.Option(0, help="seed"),
           root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
+          capture: Optional[Path] = typer.Option(None, help="pose_tolerance: the capture folder"),
+          poses: Optional[Path] = typer.Option(None, help="pose_tolerance: a poses folder, its accuracy marked"),
           quiet: bool = QUIET,
           overwrite: bool = OVERWRITE):
     """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time.
 
-    With a lecture study's name instead of a scene, run that study into <root>/lecture/<name>."""
+    With a lecture study's name instead of a scene, run that study into <root>/lecture/<name>.
+    pose_tolerance --capture DIR [--poses DIR]: NeRF and slab display PSNR against perturbed cameras
+    (into <capture>/../study_pose_tolerance)."""
+    if scene == "pose_tolerance":
+        from .stages.pose_tolerance_study import default_out, run_pose_tolerance
+
+        if capture is None:
+            raise BadInput("study pose_tolerance: --capture is required (a capture folder)")
+        out = out or default_out(capture)
+        m = run_pose_tolerance(capture, out, poses, profile=profile, seed=seed, quiet=quiet, overwrite=overwrite)
+        typer.echo(f"study pose_tolerance: {m['metrics']['points']} points in {m['metrics']['wall_time_s']:.0f} s -> {out}")
+        return
     from .stages.lecture import LECTURE_STUDIES, lecture_dir, run_lecture_study
 
     if scene in LECTURE_STUDIES:
