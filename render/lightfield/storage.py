@@ -142,6 +142,10 @@ def write_slab_index(folder, slabs: Sequence[LightSlab], check: bool = True) -> 
     return out
 
 
+#: LZMA preset of the float16 depth stream (codes keep preset 6: they are 15x smaller)
+DEPTH_XZ_PRESET = 1
+
+
 def _sample_dtype(arr: np.ndarray) -> np.dtype:
     """The dtype a sample array is stored in: its own, float32 or float16."""
     return np.dtype(np.float16) if np.asarray(arr).dtype == np.float16 else np.dtype(np.float32)
@@ -184,7 +188,9 @@ def save_slabs(folder, slabs: Sequence[LightSlab]) -> Path:
                 buf = io.BytesIO()
                 np.save(buf, np.ascontiguousarray(s.depth, dtype=np.float16))
                 with atomic_path(folder / depth_name) as tmp:
-                    Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=6))
+                    # preset 1: at the pixel footprint preset 6 took ~12 s per 16 MB of depth (the
+                    # stage's longest step) for a 1.6x smaller file; preset 1 is ~9x faster
+                    Path(tmp).write_bytes(lzma.compress(buf.getvalue(), preset=DEPTH_XZ_PRESET))
             else:
                 _save_npy(folder / depth_name, s.depth, _sample_dtype(s.depth))
     return write_slab_index(folder, slabs, check=False)
