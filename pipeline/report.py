@@ -36,6 +36,7 @@ from render.image_io import atomic_path, read_exr
 from .artifacts import MANIFEST, BadInput, read_json
 from .plot import Series, pareto_mask, svg_plot
 from .report_lecture import lecture_section
+from .report_poses import pose_tolerance_section
 
 __all__ = ["write_report", "REPORT", "GENERATOR_TAG"]
 
@@ -445,7 +446,7 @@ def write_report(artifacts_dir: Path, out: Path | None = None, max_views: int = 
             "<h2>Models at the held-out views</h2>", _models_section(models, best and best["model"], front, ref),
             "<h2>Accuracy against time</h2>", _plots_section(models, ref, root, vdir),
             "<h2>Side by side</h2>", _views_section(root, vdir, models, views, gain, max_views, thumb),
-            "<h2>Pose accuracy</h2>", _poses_section(met.get("poses", {})),
+            "<h2>Pose accuracy</h2>", _poses_section(met.get("poses", {})), pose_tolerance_section(root),
             "<h2>Stages: what each produced</h2>", _stages_section(root),
             lecture_section(root.parent)]
     page = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"

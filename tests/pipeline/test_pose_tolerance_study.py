@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.report_poses import pose_tolerance_section
 from pipeline.stages.pose_tolerance_study import perturb_cameras, random_rotations
 from render.camera import Camera, Intrinsics
 
@@ -83,9 +84,10 @@ def lens_capture(tmp_path_factory) -> Path:
 
 def test_pose_tolerance_study_through_the_cli(lens_capture, tmp_path):
     """At the tests' size (one rotation, one focal error, the lens dropped; 3 NeRF steps, uv 4):
-    the folder holds the table, both plots and summary.json, every figure finite; a 1 degree
+    the folder holds the table, both plots and summary.json, every figure finite, and the report's
+    pose section shows them; a 1 degree
     rotation costs the slab >= 1 dB (measured 3.2 dB at 128x96: 26.1 -> 23.0 dB, 2.3 px of misregistration)."""
-    out = tmp_path / "study"
+    out = tmp_path / "study_pose_tolerance"  # where the report looks, beside the scene's stages
     proc = lumigraph("study", "pose_tolerance", "--capture", lens_capture, "--out", out, "--quiet",
                      env={"LUMIGRAPH_POSE_STUDY_SIZE": "tiny"})
     assert proc.returncode == 0, proc.stderr
@@ -102,6 +104,9 @@ def test_pose_tolerance_study_through_the_cli(lens_capture, tmp_path):
         assert (out / f).read_text().startswith("<svg")
     assert not (out / "points").exists()  # the models are deleted, only the figures stay
     assert json.loads((out / "manifest.json").read_text())["stage"] == "pose_tolerance_study"
+    section = pose_tolerance_section(tmp_path)  # the report's pose section
+    assert section.count("<svg") == 2 and "rotation_deg_1" in section and "no_distortion" in section
+    assert "no study_pose_tolerance/" in pose_tolerance_section(tmp_path / "elsewhere")
 
 
 @pytest.mark.parametrize("args, word", [((), "--capture"), (("--capture", "{capture}", "--poses", "/nonexistent"), "--poses"),
