@@ -4,18 +4,23 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 from PIL import Image
 
 from .spec import MAX_TEXTURE_SIDE, CharucoTexture, ProceduralTexture, SpecError, TextureSpec, resolve_file
+
+if TYPE_CHECKING:  # imported where a board is drawn or noise resized: a scene without those (the
+    import cv2  # Cornell box) loads without OpenCV (start-up cost)
 
 __all__ = ["load_texture", "charuco_board", "charuco_image"]
 
 
 def charuco_board(spec: CharucoTexture) -> "cv2.aruco.CharucoBoard":
     """The OpenCV board object (lengths in scene units) a detector needs."""
+    import cv2
+
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, spec.dictionary))
     return cv2.aruco.CharucoBoard(tuple(spec.squares), spec.square_length, spec.marker_length, dictionary)
 
@@ -41,6 +46,8 @@ def _procedural(spec: ProceduralTexture) -> np.ndarray:
         img = colours[mask]
     else:
         # sum of octaves of bilinearly upsampled noise: rich, non-repeating detail for features
+        import cv2
+
         img = np.zeros((n, n, 3))
         for octave in range(1, 7):
             k = min(n, 2 ** (octave + 1))

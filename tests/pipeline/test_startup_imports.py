@@ -2,7 +2,7 @@
 processes through ``sys.modules`` (timing is the benchmark's: bench/bench_startup.py).
 
 * ``lumigraph reference cornell`` (a scene of quads, the path integrator) runs without torch,
-  pyrender, dask, trimesh (and the networkx it pulls in) or scipy.spatial / ndimage / stats;
+  pyrender, dask, trimesh (and the networkx it pulls in), scipy.spatial / ndimage / stats or cv2;
   importing ``render.integrators`` imports no integrator module (the registry is lazy) and the
   render imports only the one it uses.
 * ``lumigraph --help`` imports none of rig, recon or numba.
@@ -18,7 +18,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: what the reference verb must not import (the packages the issue names, and what trimesh brings)
 HEAVY = ("torch", "pyrender", "dask", "distributed", "trimesh", "networkx", "scipy.spatial", "scipy.ndimage",
-         "scipy.stats")
+         "scipy.stats", "cv2")
 
 _REFERENCE = r"""
 import json, sys
