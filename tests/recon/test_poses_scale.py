@@ -13,14 +13,14 @@ from recon.poses.colmap_process import estimate_colmap_stoppable
 
 
 def test_auto_resolves_by_view_count():
-    """56 views: every pair, the incremental mapper, SIFT on the doubled image; from 150 views on:
-    the capture's order (sequential by name without it), the global mapper, SIFT from the image's
-    own size. A given option is kept whatever the count."""
+    """56 views: every pair, the incremental mapper; from 150 views on: the capture's order
+    (sequential by name without it), the global mapper; SIFT on the doubled image at every count
+    (octave 0 doubled the rotation error at 224 views). A given option is kept whatever the count."""
     cfg = ColmapConfig()
     assert [sum(n for _, n in LAYOUTS[v][0]) + LAYOUTS[v][1][1] for v in LAYOUTS] == [56, 224, 1000]
     table = {v: (resolve_matcher(cfg, v, True), resolve_mapper(cfg, v), resolve_first_octave(cfg, v)) for v in LAYOUTS}
-    assert table == {56: ("exhaustive", "incremental", -1), 224: ("capture_order", "global", 0),
-                     1000: ("capture_order", "global", 0)}
+    assert table == {56: ("exhaustive", "incremental", -1), 224: ("capture_order", "global", -1),
+                     1000: ("capture_order", "global", -1)}
     assert resolve_matcher(cfg, 224, False) == "sequential"
     assert resolve_first_octave(ColmapConfig(first_octave=-1), 1000) == -1
     assert resolve_first_octave(ColmapConfig(first_octave=0), 56) == 0
