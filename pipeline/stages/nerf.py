@@ -11,11 +11,14 @@ Layout (DESIGN.md)::
     nerf/<model>/manifest.json
 
 Metrics are computed at the working scale (the capture area-averaged by ``downsample``, by default
-the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene), where the
-model is trained. Renders are written at the capture's resolution as DESIGN.md asks, by repeating
-each working-scale pixel (nearest); a model config with ``render_full_res=True`` renders every
-pixel instead and also reports ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``
-(costly: 9.8M rays for 8 views at 1280x960). ꟻLIP and the subject's figures are the validate
+the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene) and, for the
+fast model (``render_full_res``, its default), at the capture's resolution: every capture pixel is
+rendered (``FastNeRF.render_inference``: occupied box, dense density grid, early termination) and
+scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. The fast model trains
+on rays through the capture's own pixels (``train_full_res``), the working scale serving the
+held-out curve. When the full-resolution render's measured cost does not fit the time left, the
+renders are the working scale's pixels repeated (nearest) and ``render_full_res`` is false under
+``time.planned``. ꟻLIP and the subject's figures are the validate
 stage's (ꟻLIP costs seconds per view). The reference is
 ``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the
 capture's own held-out images (exact for direct-only scenes rendered by the rasterizer).
@@ -181,8 +184,9 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         check_poses(poses_dir, capture_dir, cams, splits)
     if reference_dir is not None and not Path(reference_dir).is_dir():
         raise BadInput(f"--reference {reference_dir}: no such folder")
+    train_full = bool(getattr(replace(MODELS[model][1], **dict(overrides or {})), "train_full_res", False))
     try:
-        data = load_data(capture_dir, poses_dir, reference_dir, downsample)
+        data = load_data(capture_dir, poses_dir, reference_dir, downsample, train_full=train_full)
     except NerfInputError as exc:
         raise BadInput(str(exc).splitlines()[0]) from None
     load_s = time.perf_counter() - t_start

@@ -18,7 +18,7 @@ in world units, pixel centres at +0.5.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +29,7 @@ from render.camera_io import read_cameras_json
 from render.image_io import read_exr
 
 __all__ = ["NerfInputError", "View", "NerfData", "area_downsample", "scene_box", "camera_rays", "load_data",
-           "stack_rays", "auto_downsample", "WORKING_WIDTH"]
+           "stack_rays", "auto_downsample", "WORKING_WIDTH", "PixelSampler"]
 
 #: the default working width: 160 pixels (160x120 for 4:3 captures) trains in minutes on 2 cores
 WORKING_WIDTH = 160
@@ -126,6 +126,40 @@ def stack_rays(views: list[View]) -> tuple[torch.Tensor, torch.Tensor, torch.Ten
     return torch.cat(os_), torch.cat(ds), torch.cat(cs)
 
 
+class PixelSampler:
+    """Training rays through the capture's own pixels (not the working scale's averages): random
+    (view, row, col) triples drawn uniformly over every pixel of ``views``' ``full_rgb`` (all the
+    same size), the ray through that pixel's centre (``Camera.pixel_rays``: distortion inverted
+    exactly) and its linear colour. Images are kept as float16 (a relative rounding of 5e-4,
+    below the 8-bit display step of any radiance above 0.002): (V, H, W, 3)."""
+
+    def __init__(self, views: list[View]):
+        if not views or any(v.full_rgb is None for v in views):
+            raise ValueError("PixelSampler needs the views' full-resolution images (load_data(..., train_full=True))")
+        self.cameras = [v.full_camera for v in views]
+        self.images = torch.from_numpy(np.stack([np.asarray(v.full_rgb, dtype=np.float16) for v in views]))
+        self.height, self.width = int(self.images.shape[1]), int(self.images.shape[2])
+
+    @property
+    def n_pixels(self) -> int:
+        return int(self.images.shape[0]) * self.height * self.width
+
+    def sample(self, n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """n random pixels: (n, 3) float32 origins, unit directions, linear RGB."""
+        idx = torch.randint(self.n_pixels, (n,), generator=generator)
+        view, rest = idx // (self.height * self.width), idx % (self.height * self.width)
+        row, col = rest // self.width, rest % self.width
+        o = torch.empty(n, 3)
+        d = torch.empty(n, 3)
+        xy = torch.stack([col.double() + 0.5, row.double() + 0.5], dim=1).numpy()
+        for v in torch.unique(view).tolist():
+            sel = (view == v).nonzero()[:, 0]
+            ov, dv = self.cameras[v].pixel_rays(xy[sel.numpy()])
+            o[sel] = torch.from_numpy(ov.astype(np.float32))
+            d[sel] = torch.from_numpy(dv.astype(np.float32))
+        return o, d, self.images[view, row, col].float()
+
+
 def _read_image(path: Path) -> np.ndarray:
     try:
         img = read_exr(path)
@@ -166,13 +200,15 @@ def _view(name: str, cam: Camera, img: np.ndarray, downsample: int, where: Path,
     return View(name, small, area_downsample(img, factor), cam, img if keep_full else None)
 
 
-def load_data(capture_dir, poses_dir=None, reference_dir=None, downsample: int | None = None) -> NerfData:
+def load_data(capture_dir, poses_dir=None, reference_dir=None, downsample: int | None = None,
+              train_full: bool = False) -> NerfData:
     """Read the views of a capture folder (see the module docstring).
 
     capture_dir: ``artifacts/<scene>/capture``; poses_dir: ``artifacts/<scene>/poses/<method>``
     or None (ground truth); reference_dir: a folder with ``linear/<view>.exr`` of the held-out
     views or None (the capture's test images); downsample: integer factor >= 1, or None for
-    :func:`auto_downsample` (working width about 160 pixels).
+    :func:`auto_downsample` (working width about 160 pixels); train_full: keep the training
+    views' full-resolution images too (``View.full_rgb``, float16) for :class:`PixelSampler`.
     """
     capture_dir = Path(capture_dir)
     cams, splits = _read_cameras(capture_dir / "cameras.json")
@@ -192,8 +228,13 @@ def load_data(capture_dir, poses_dir=None, reference_dir=None, downsample: int |
         train_names = [n for n in train_names if n in train_cams]
         if not train_names:
             raise NerfInputError(f"{Path(poses_dir) / 'cameras.json'}: no camera of the capture's train split")
-    train = [_view(n, train_cams[n], _read_image(capture_dir / "linear" / f"{n}.exr"), downsample,
-                   capture_dir / "linear" / f"{n}.exr") for n in train_names]
+    def train_view(n: str) -> View:
+        v = _view(n, train_cams[n], _read_image(capture_dir / "linear" / f"{n}.exr"), downsample,
+                  capture_dir / "linear" / f"{n}.exr", keep_full=train_full)
+        # half the bytes, one view at a time: 48 views of 1280x960 are 354 MB
+        return replace(v, full_rgb=v.full_rgb.astype(np.float16)) if train_full else v
+
+    train = [train_view(n) for n in train_names]
     ref_root = Path(reference_dir) if reference_dir is not None else capture_dir
     test = []
     for n in test_names:

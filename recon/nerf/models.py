@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .volume import STOP_TRANSMITTANCE, composite, exclusive_transmittance, optical_depth, ray_aabb
+from .volume import STOP_TRANSMITTANCE, alpha_from_tau, composite, exclusive_transmittance, optical_depth, ray_aabb
 
 from .encoding import SH_DIM, PositionalEncoding, sh_encoding
 from .sampling import march_steps, sample_pdf, stratified
@@ -119,7 +119,12 @@ class FastConfig:
     min_rays: int = 256
     max_rays: int = 8192
     curve_pixels: int | None = 1024
-    render_full_res: bool = False
+    #: held-out views rendered at every capture pixel (:meth:`FastNeRF.render_inference`)
+    render_full_res: bool = True
+    #: train on rays through the capture's own pixels (``recon.nerf.data.PixelSampler``) from
+    #: progress ``full_res_from`` on; before it (and with False) on the working scale's averages
+    train_full_res: bool = True
+    full_res_from: float = 0.0
     background: float = 0.0
 
 
@@ -246,6 +251,9 @@ class VanillaNeRF(_Boxed):
 
 # --------------------------------------------------------------------------- TensoRF-VM
 
+
+#: held-out rendering evaluates colour only at samples of larger weight (TensoRF's 1e-4)
+COLOUR_MIN_WEIGHT = 1.0e-4
 
 _PLANE_AXES = ((0, 1), (0, 2), (1, 2))   # plane m spans these coordinates ...
 _LINE_AXIS = (2, 1, 0)                    # ... and its vector runs along this one
@@ -406,6 +414,106 @@ class FastNeRF(_Boxed):
         r, s = mask.nonzero(as_tuple=True)
         k = int(mask.sum(dim=1).max()) if r.numel() else 0
         return r, rank[r, s], k
+
+    @torch.no_grad()
+    def prepare_inference(self, n_points: int | None = None) -> bool:
+        """Build the dense density feature grid for the current parameters (their tensors and
+        in-place versions); True when it is ready. With ``n_points``, build it only when that many
+        lookups repay the build (res^3 multiply-adds per component): a probe of a few rays or the
+        curve's pixel subsets keep the factored lookups."""
+        vm = self.density_vm
+        key = (id(vm.planes), vm.planes._version, id(vm.lines), vm.lines._version)
+        if getattr(self, "_dense_key", None) == key:
+            return True
+        if n_points is not None and n_points < vm.res ** 3 // 8:
+            return False
+        self._dense_feat = vm.dense().permute(2, 1, 0)[None, None].contiguous()   # (1, 1, z, y, x)
+        self._dense_key = key
+        return True
+
+    @torch.no_grad()
+    def _density_from_grid(self, x_unit: torch.Tensor) -> torch.Tensor:
+        """:meth:`density` of (N, 3) box coordinates through the dense (res, res, res) feature grid:
+        one trilinear lookup instead of 2 x 3 x n_comp_sigma factored ones, the same field (the
+        factored field is trilinear between grid vertices, :meth:`_VM.dense`). The grid is rebuilt
+        when the density parameters change (their tensors or in-place versions)."""
+        if not self.prepare_inference(x_unit.shape[0]):
+            return self.density(x_unit)
+        g = x_unit.reshape(1, 1, 1, -1, 3)                        # grid_sample: (x, y, z) -> (W, H, D)
+        feat = F.grid_sample(self._dense_feat, g, mode="bilinear", align_corners=True).reshape(-1)
+        return self._sigma(feat)
+
+    @torch.no_grad()
+    def occupied_box(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The world-space (lo, hi) (3,) of the occupied cells (the whole box before the
+        occupancy grid is active or when no cell is occupied)."""
+        if not bool(self.occ_active) or not bool(self.occupancy.any()):
+            return self.lo, self.hi
+        g = self.cfg.occ_res
+        idx = self.occupancy.nonzero()
+        cell_lo = idx.min(dim=0).values.float() / g
+        cell_hi = (idx.max(dim=0).values.float() + 1.0) / g
+        size = self.hi - self.lo
+        return self.lo + cell_lo * size, self.lo + cell_hi * size
+
+    @torch.no_grad()
+    def render_inference(self, o: torch.Tensor, d: torch.Tensor, segment: int = 48) -> RenderOut:
+        """Held-out rendering (no gradients), the same quadrature and samples as
+        ``render(training=False)`` but marched in segments of ``segment`` steps over the rays still
+        alive: rays start at the occupied cells' bounding box, skip empty cells, evaluate colour only
+        where a sample's weight exceeds ``COLOUR_MIN_WEIGHT`` (TensoRF's ray-marching weight threshold:
+        each skipped sample changes the colour by at most that weight times its colour), and leave once their transmittance is below
+        ``STOP_TRANSMITTANCE`` (which ``composite`` weights zero anyway). o, d: (R, 3) float32 rays
+        (unit d, world units). Why: the training render builds every step of every ray up front
+        (hundreds per ray) and evaluates the density behind opaque surfaces."""
+        R = o.shape[0]
+        step = self.step
+        t0, t1 = ray_aabb(o, d, self.lo, self.hi)            # the sample grid is anchored at the box entry
+        olo, ohi = self.occupied_box()
+        s0, s1 = ray_aabb(o, d, olo, ohi)
+        s0, s1 = torch.maximum(s0, t0), torch.minimum(s1, t1)
+        rgb = torch.zeros(R, 3)
+        opacity = torch.zeros(R)
+        wt = torch.zeros(R)
+        trans = torch.ones(R)
+        alive = (s1 > s0).nonzero()[:, 0]
+        # first step index k with t0 + (k + 0.5) step >= s0: the occupied box's samples, none skipped
+        k_first = torch.clamp(torch.floor((s0 - t0) / step - 0.5), min=0).long()
+        k_next = k_first.clone()
+        n_points = 0
+        occ = bool(self.occ_active)
+        while alive.numel():
+            a = alive
+            k = k_next[a, None] + torch.arange(segment)[None, :]                    # (A, K)
+            t = t0[a, None] + (k.float() + 0.5) * step
+            valid = (t < s1[a, None]) & (t < t1[a, None])
+            pts = self.to_unit(o[a, None, :] + t[..., None] * d[a, None, :])
+            if occ:
+                valid &= self._occupied(pts.reshape(-1, 3)).reshape(valid.shape)
+            sig = torch.zeros(valid.shape)
+            if bool(valid.any()):
+                sig[valid] = self._density_from_grid(pts[valid])
+            tau = optical_depth(sig, torch.full_like(sig, step))
+            tr = trans[a, None] * exclusive_transmittance(tau)                         # light reaching each sample
+            w = tr * alpha_from_tau(tau)
+            w = torch.where(tr >= STOP_TRANSMITTANCE, w, torch.zeros_like(w))
+            seen = w > COLOUR_MIN_WEIGHT
+            if bool(seen.any()):
+                r_i, s_i = seen.nonzero(as_tuple=True)
+                _, col = self.field(pts[r_i, s_i], d[a[r_i]])
+                n_points += int(r_i.shape[0])
+                ws = w[r_i, s_i]
+                rgb.index_add_(0, a[r_i], ws[:, None] * col)
+            opacity[a] += w.sum(dim=1)
+            wt[a] += (w * t).sum(dim=1)
+            trans[a] = tr[:, -1] * torch.exp(-tau[:, -1])
+            k_next[a] += segment
+            t_next = t0[a] + (k_next[a].float() + 0.5) * step
+            alive = a[(trans[a] >= STOP_TRANSMITTANCE) & (t_next < s1[a])]
+        opacity = opacity.clamp(max=1.0)
+        rgb = rgb + (1.0 - opacity)[:, None] * self.cfg.background
+        dist = torch.where(opacity > 0, wt / opacity.clamp(min=1e-10), torch.zeros_like(wt))
+        return RenderOut(rgb, dist, opacity, [], n_points)
 
     def render(self, o: torch.Tensor, d: torch.Tensor, training: bool = False,
                generator: torch.Generator | None = None) -> RenderOut:

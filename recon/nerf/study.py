@@ -13,7 +13,7 @@ pixel subsets (``curve_pixels``).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .data import load_data
@@ -106,7 +106,9 @@ def run_study(capture_dir, runs: list[Run], minutes: float, reference_dir=None, 
     curves, summary = {}, {}
     rows = []
     for run in runs:
-        data = load_data(capture_dir, run.poses, reference_dir, downsample)
+        model_cfg = replace(MODELS[run.model][1], **dict(settings.get(run.model, ())))
+        data = load_data(capture_dir, run.poses, reference_dir, downsample,
+                         train_full=bool(getattr(model_cfg, "train_full_res", False)))
         log(f"study: {run.label} ({run.model}, poses {data.poses}) for {minutes} min")
         res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s,
                                       clock=clock, overrides=settings.get(run.model, ())))

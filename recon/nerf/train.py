@@ -38,7 +38,7 @@ from render.camera import Camera
 from render.image_io import atomic_path
 from render.metrics import mse_to_psnr, psnr, ssim, to_display  # one PSNR convention (capped at PSNR_MAX_DB)
 
-from .data import NerfData, camera_rays, stack_rays
+from .data import NerfData, PixelSampler, camera_rays, stack_rays
 from .models import MODELS, make_model
 
 __all__ = ["TrainConfig", "TrainResult", "Deadline", "train", "render_view", "evaluate_view", "evaluate_views",
@@ -119,12 +119,15 @@ def render_view(model: nn.Module, camera: Camera, chunk: int = 8192,
     0.5, as the capture's depth), "opacity": (H, W)}, float32. With ``pixels`` ((P,) flat
     row-major indices) only those pixels: (P, 3), (P,), (P,)."""
     model.eval()
+    if pixels is None and hasattr(model, "prepare_inference"):
+        model.prepare_inference()  # a whole view repays the dense density grid
     o, d = camera_rays(camera)
     if pixels is not None:
         o, d = o[pixels], d[pixels]
     rgb, dist, acc = [], [], []
+    draw = getattr(model, "render_inference", None) or (lambda o_, d_: model.render(o_, d_, training=False))
     for i in range(0, o.shape[0], chunk):
-        out = model.render(o[i:i + chunk], d[i:i + chunk], training=False)
+        out = draw(o[i:i + chunk], d[i:i + chunk])
         rgb.append(out.rgb)
         dist.append(out.distance)
         acc.append(out.opacity)
@@ -193,6 +196,10 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     model = make_model(cfg.model, data.lo, data.hi, cfg.seed, model_cfg)
     gen = torch.Generator().manual_seed(cfg.seed)
     o_all, d_all, c_all = stack_rays(data.train)
+    # rays through the capture's own pixels (FastConfig.train_full_res) from progress full_res_from on
+    pixel_sampler = (PixelSampler(data.train) if getattr(model_cfg, "train_full_res", False)
+                     and all(v.full_rgb is not None for v in data.train) else None)
+    full_res_from = getattr(model_cfg, "full_res_from", 0.0)
     if hasattr(model, "init_colour"):
         model.init_colour(c_all.mean(dim=0))  # a resumed run loads its own state below
     n_rays = o_all.shape[0]
@@ -222,6 +229,8 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         PROBE_SHARE of the time left before the deadline at the cost of the 8 warm-up rays (an
         upper bound per ray: first-call overheads included), at least 8. A fixed 128 cost 10 s of
         an untrained model on 2 loaded cores, most of a 12 s budget."""
+        if hasattr(model, "prepare_inference"):
+            model.prepare_inference()  # as a whole view's render does (its build is per view set, not per ray)
         t0 = time.perf_counter()
         render_view(model, data.test[0].camera, pixels=probe[:8])  # first-call overheads are not a ray's cost
         warm_s_per_ray = (time.perf_counter() - t0) / min(8, probe.shape[0])
@@ -302,9 +311,12 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         hook_wall = max(hook_wall, time.perf_counter() - w0)
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]
-        idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
-        target = c_all[idx]
-        out = model.render(o_all[idx], d_all[idx], training=True, generator=gen)
+        if pixel_sampler is not None and progress_now >= full_res_from:
+            o_b, d_b, target = pixel_sampler.sample(model.batch_rays(), gen)
+        else:
+            idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
+            o_b, d_b, target = o_all[idx], d_all[idx], c_all[idx]
+        out = model.render(o_b, d_b, training=True, generator=gen)
         mse = torch.mean((out.rgb - target) ** 2)
         loss = mse + sum(torch.mean((a - target) ** 2) for a in out.aux)
         if not torch.isfinite(loss):
@@ -320,7 +332,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         step_wall = max(this_step, 0.8 * step_wall)
         if progress is not None:
             progress({"fraction": min(frac(), 1.0), "step": step, "loss": loss.item(), "psnr": mse_to_psnr(mse.item()),
-                      "test_psnr": test_psnr, "rays": int(idx.shape[0]), "points": out.n_points})
+                      "test_psnr": test_psnr, "rays": int(target.shape[0]), "points": out.n_points})
         if checkpoint is not None and train_s >= next_ckpt:
             _save(Path(checkpoint), model, opt, step, train_s, curve, gen, cfg)
             next_ckpt = train_s + cfg.checkpoint_every_s

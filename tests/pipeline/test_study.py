@@ -147,3 +147,10 @@ def test_nerf_study_writes_its_table_plot_and_summary(tmp_path):
     assert svg.startswith("<svg") and svg.count("<polyline") == 1  # "b" has one point: nothing to join
     assert ">a</text>" in svg and "public factored-grid CPU reference" in svg and "160x120" in svg
     assert json.loads((tmp_path / "summary.json").read_text())["runs"]["a"]["final_display_psnr"] == 21.3
+
+
+def test_full_profile_sweeps_the_fast_nerf_at_2_5_and_10_minutes():
+    """Issue 15: the study's NeRF front is display PSNR at capture resolution against 2, 5 and 10
+    minutes of the stage (its wall time on the x axis)."""
+    from pipeline.stages.study import PROFILES
+    assert [m for model, m in PROFILES["full"].nerf if model == "fast"] == [2.0, 5.0, 10.0]

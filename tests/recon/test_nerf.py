@@ -13,7 +13,7 @@ import torch
 
 from pipeline.artifacts import BadInput
 from pipeline.stages.nerf import NerfStageConfig, run_nerf
-from recon.nerf.data import NerfInputError, area_downsample, load_data, scene_box
+from recon.nerf.data import NerfInputError, area_downsample, camera_rays, load_data, scene_box
 from recon.nerf.encoding import PositionalEncoding, sh_encoding
 from recon.nerf.models import MODELS, FastConfig, FastNeRF, make_model
 from recon.nerf.sampling import sample_pdf, stratified
@@ -206,6 +206,54 @@ def test_fast_model_learns_the_tiny_scene(trained_fast, tiny_data):
     assert trained_fast.steps == 150
 
 
+def test_inference_render_equals_the_training_quadrature(trained_fast, tiny_data):
+    """Held-out rendering (segments over live rays, the occupied box, the dense density grid,
+    colour only above COLOUR_MIN_WEIGHT) against the training render's quadrature on the same
+    samples: the opacity equal to float rounding, the colour within the skipped weights' bound."""
+    from recon.nerf.models import COLOUR_MIN_WEIGHT
+    m = trained_fast.model
+    assert bool(m.occ_active) and m.prepare_inference()  # the dense grid, as a whole view uses
+    o, d = camera_rays(tiny_data.test[0].camera)
+    with torch.no_grad():
+        ref = m.render(o, d, training=False)
+    for segment in (48, 5):  # a segment boundary falls inside the cube
+        got = m.render_inference(o, d, segment=segment)
+        assert torch.all(torch.isfinite(got.rgb)) and float(ref.opacity.max()) > 0.5
+        assert float((got.opacity - ref.opacity).abs().max()) < 1e-5
+        assert float((got.distance - ref.distance).abs().max()) < 1e-4
+        # every skipped sample has weight <= COLOUR_MIN_WEIGHT and colour <= 1; at most steps_per_side * sqrt(3) of them
+        assert float((got.rgb - ref.rgb).abs().max()) <= COLOUR_MIN_WEIGHT * 96 * 3 ** 0.5, segment
+        assert got.n_points < ref.n_points
+
+
+def test_dense_density_grid_equals_the_factored_density(trained_fast):
+    m = trained_fast.model
+    x = torch.rand(2000, 3, generator=torch.Generator().manual_seed(3)) * 2 - 1
+    assert m.prepare_inference()
+    with torch.no_grad():
+        a, b = m.density(x), m._density_from_grid(x)
+    assert float((a - b).abs().max()) <= 1e-4 * float(a.abs().max()) + 1e-6
+
+
+def test_pixel_sampler_pairs_each_ray_with_its_pixel(tiny_capture):
+    """PixelSampler's rays are the capture's pixel-centre rays of the drawn view and pixel, and
+    its colours that pixel's (float16): every sample is found among all pixels' (ray, colour)."""
+    from recon.nerf.data import PixelSampler
+    data = load_data(tiny_capture, downsample=2, train_full=True)
+    sampler = PixelSampler(data.train)
+    assert sampler.width == SIZE[0] and sampler.height == SIZE[1]
+    o, d, c = sampler.sample(300, torch.Generator().manual_seed(0))
+    rays = [camera_rays(v.full_camera) for v in data.train]
+    all_o = torch.cat([r[0] for r in rays])
+    all_d = torch.cat([r[1] for r in rays])
+    all_c = torch.cat([torch.from_numpy(v.full_rgb.astype(np.float32).reshape(-1, 3)) for v in data.train])
+    gap = torch.cdist(torch.cat([o, d], 1), torch.cat([all_o, all_d], 1), compute_mode="donot_use_mm_for_euclid_dist")
+    best = gap.argmin(dim=1)
+    assert float(gap.min(dim=1).values.max()) < 1e-5
+    assert torch.equal(c, all_c[best])
+    assert float(c.sum()) > 0  # some samples hit the cube
+
+
 def test_training_is_deterministic_and_resumes_exactly(tiny_data, tmp_path):
     """Same seed, same result: 20 steps then a resume to 40 equal 40 straight (step-bounded, so
     the schedule, with an upsampling and occupancy updates in between, is deterministic)."""
@@ -284,6 +332,8 @@ def test_stage_writes_the_nerf_folder(stage_out, tiny_capture):
     metrics = json.loads((stage_out / "metrics.json").read_text())
     assert [r["view"] for r in metrics["views"]] == names
     assert all(np.isfinite(r["display_psnr"]) and 0 <= r["display_ssim"] <= 1 for r in metrics["views"])
+    # held-out views rendered at every capture pixel by default, scored there
+    assert metrics["time"]["planned"]["render_full_res"] is True and np.isfinite(metrics["display_psnr_full_mean"])
     lines = (stage_out / "curve.csv").read_text().splitlines()
     assert lines[0] == "step,train_s,wall_s,display_psnr,linear_psnr" and len(lines) >= 2
     manifest = json.loads((stage_out / "manifest.json").read_text())
