@@ -22,7 +22,9 @@ class RunParams:
     about a quarter of full resolution's time); slab_uv_res: uv samples along a slab's uv quad's
     longer side; slab_st_per_pixel: st samples per capture pixel of the subject's footprint on the
     st plane (memory goes to st: with depth correction the held-out views follow the st sampling,
-    hardly the uv; :class:`recon.slab.LayoutConfig`); nerf_model: NeRF model name; nerf_minutes:
+    hardly the uv; :class:`recon.slab.LayoutConfig`; the run takes half the footprint, a quarter
+    of its rays, so that ``make demo`` fits its 15 minutes: ``lumigraph slab`` alone defaults to
+    the full footprint); nerf_model: NeRF model name; nerf_minutes:
     its wall-clock budget (0 skips it)."""
 
     scene: str = "turntable"
@@ -31,7 +33,7 @@ class RunParams:
     poses_method: str = "colmap"
     poses_image_scale: float = 0.5
     slab_uv_res: int = LayoutConfig.uv_res
-    slab_st_per_pixel: float = LayoutConfig.st_per_pixel
+    slab_st_per_pixel: float = 0.5
     nerf_model: str = "fast"
     nerf_minutes: float = 4.0
 

@@ -11,13 +11,15 @@ Layout (DESIGN.md)::
     nerf/<model>/manifest.json
 
 Metrics are computed at the working scale (the capture area-averaged by ``downsample``, by default
-the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene) and, for the
-fast model (``render_full_res``, its default), at the capture's resolution: every capture pixel is
+the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene) and, with
+the fast model's opt-in ``render_full_res``, at the capture's resolution: every capture pixel is
 rendered (``FastNeRF.render_inference``: occupied box, dense density grid, early termination) and
-scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. The fast model trains
-on rays through the capture's own pixels (``train_full_res``), the working scale serving the
-held-out curve. When the full-resolution render's measured cost does not fit the time left, the
-renders are the working scale's pixels repeated (nearest) and ``render_full_res`` is false under
+scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. With the opt-in
+``train_full_res`` the fast model trains on rays through the capture's own pixels, the working scale
+serving the held-out curve (both are off by default: on the default scene's 4-minute stage they
+scored 2.5 dB lower; docs/architecture.md). When the full-resolution render's measured cost does not
+fit the time left, the renders are the working scale's pixels repeated (nearest) and
+``render_full_res`` is false under
 ``time.planned``. ꟻLIP and the subject's figures are the validate
 stage's (ꟻLIP costs seconds per view). The reference is
 ``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the

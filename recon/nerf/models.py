@@ -120,10 +120,10 @@ class FastConfig:
     max_rays: int = 8192
     curve_pixels: int | None = 1024
     #: held-out views rendered at every capture pixel (:meth:`FastNeRF.render_inference`)
-    render_full_res: bool = True
+    render_full_res: bool = False
     #: train on rays through the capture's own pixels (``recon.nerf.data.PixelSampler``) from
     #: progress ``full_res_from`` on; before it (and with False) on the working scale's averages
-    train_full_res: bool = True
+    train_full_res: bool = False
     full_res_from: float = 0.0
     background: float = 0.0
 
