@@ -354,6 +354,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
                  "mapper": res.mapper, "pairs": res.pairs, "camera_model": res.camera_model,
                  "camera_model_note": res.lens_note, "lens_steps": res.lens_steps,
                  "observed_radius_rel": res.observed_radius_rel, "rational_refit_px": res.rational_refit_px,
+                 "crop_box": None if res.crop_box is None else list(res.crop_box),
                  **{f"{step}_time_s": t for step, t in res.times_s.items()}}
     else:
         cfg = config.charuco

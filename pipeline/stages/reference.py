@@ -233,7 +233,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         "scene": rig.scene.name, "views": views, "splits": sorted({s for s, _ in chosen}), "spp": spp, "seed": seed, "max_depth": max_depth,
         "sampler": getattr(options, "sampler", None),
         # the Sobol sampler's replicates: the variance image has R - 1 degrees of freedom per pixel
-        "replicates": replicates_for(spp) if getattr(options, "sampler", None) == "sobol" else None,
+        "replicates": replicates_for(spp) if getattr(options, "sampler", None) in ("sobol", "sobol-blocks") else None,
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)

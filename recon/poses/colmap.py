@@ -27,7 +27,7 @@ import sys
 import time
 from contextlib import contextmanager
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -37,7 +37,7 @@ import numpy as np
 from render.camera import Camera, Intrinsics
 from render.camera_io import colmap_camera
 
-from .pairing import ViewOrder, capture_order_pairs
+from .pairing import ViewOrder, capture_order_pairs, doubling_offsets
 
 __all__ = ["ColmapConfig", "ColmapResult", "ReconstructionError", "estimate_colmap"]
 
@@ -68,6 +68,9 @@ class ColmapConfig:
         capture_order when the order is known, else sequential.
     sequential_overlap: neighbours matched ahead per image by the sequential and capture-order
         matchers (the capture-order window).
+    pair_offsets: the capture-order matcher's steps within a sequence: ``consecutive`` (the next
+        ``sequential_overlap`` frames) or ``doubling`` (1, 2, 4, .. up to ``sequential_overlap``:
+        4 pairs per view instead of 12 at the default overlap; :func:`recon.poses.pairing.doubling_offsets`).
     link_window: half-width of the capture-order links between sequences (frames either side of
         the same phase).
     mapper: ``incremental`` (COLMAP's incremental mapper), ``global`` (COLMAP 4's global mapper,
@@ -95,8 +98,18 @@ class ColmapConfig:
     cost that is still small; above, pairs must grow linearly and only the global mapper
     finishes. ``bench/results/bench_poses_scale.json`` holds the stage's own figures at 56 / 224
     / 1000 views.
+    global_tracks_per_view: the global mapper keeps tracks until every view has this many (the
+        longest first; 0 = every track): fewer points in global positioning and its bundle
+        adjustment.
+    global_retriangulate: the global mapper's retriangulation and second bundle adjustment after
+        the first (False skips them).
     final_ba_iterations: iterations of one extra global bundle adjustment with tight tolerances
         after mapping (0 skips it).
+    crop_to_subject: extract features from the views' common box around the subject
+        (:func:`subject_box`: the background is dark; found from the images themselves, no pose
+        involved) instead of the whole frame; the intrinsics follow the crop (principal point
+        shifted, or with self-calibration a box centred on the image so the mapper's centred
+        principal point stays right). Same features on the subject, fewer pixels to filter.
     seed: COLMAP's RANSAC seeds (two-view verification, mapper, triangulation) and its global PRNG.
     num_threads: threads of feature extraction and matching (-1 = all cores); the result does not
         depend on it. COLMAP numbers images in the order its extraction threads finish, and the
@@ -113,11 +126,15 @@ class ColmapConfig:
     matcher: Literal["auto", "exhaustive", "capture_order", "sequential"] = "auto"
     exhaustive_max_images: int = 150
     sequential_overlap: int = 12
+    pair_offsets: Literal["consecutive", "doubling"] = "doubling"
     link_window: int = 1
     mapper: Literal["auto", "incremental", "global"] = "auto"
     global_min_images: int = 150
+    global_tracks_per_view: int = 0
+    global_retriangulate: bool = True
     camera_model: str = "auto"
     final_ba_iterations: int = 100
+    crop_to_subject: bool = True
     seed: int = 0
     num_threads: int = -1
 
@@ -132,6 +149,8 @@ class ColmapConfig:
             raise ValueError(f"matcher must be auto, exhaustive, capture_order or sequential, got {self.matcher!r}")
         if self.mapper not in ("auto", "incremental", "global"):
             raise ValueError(f"mapper must be auto, incremental or global, got {self.mapper!r}")
+        if self.pair_offsets not in ("consecutive", "doubling"):
+            raise ValueError(f"pair_offsets must be consecutive or doubling, got {self.pair_offsets!r}")
         if self.sequential_overlap < 1 or self.link_window < 0:
             raise ValueError("sequential_overlap must be >= 1 and link_window >= 0")
         if self.camera_model != "auto" and self.camera_model not in CAMERA_MODELS:
@@ -153,6 +172,8 @@ class ColmapResult:
     resolved); pairs: image pairs matched; times_s: wall seconds of ``extract``, ``match``,
     ``map`` (the mapper and the final bundle adjustment) and ``refine`` (the part of ``map``
     after the mapper: final bundle adjustment, or the lens ladder when self-calibrating).
+    crop_box: ``(x0, y0, x1, y1)`` input pixels the features were extracted from
+    (:func:`subject_box`), None for the whole frame.
     """
 
     cameras: list[Camera]
@@ -171,24 +192,76 @@ class ColmapResult:
     lens_note: str = ""
     rational_refit_px: float = 0.0
     observed_radius_rel: float = 0.0
+    crop_box: tuple[int, int, int, int] | None = None
 
 
-def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path) -> list[str]:
-    """Copy (scale 1) or resize (INTER_AREA down, INTER_CUBIC up) every image into ``folder``."""
+#: a pixel belongs to the subject when its brightest channel exceeds this (8-bit) after averaging
+#: over SUBJECT_CELL x SUBJECT_CELL blocks (the average tames sensor noise on the black background)
+SUBJECT_LEVEL = 12
+SUBJECT_CELL = 8
+#: pixels kept around the subject's box (SIFT's support region at the box edge)
+SUBJECT_MARGIN = 32
+#: a box covering more of the frame than this is not worth a crop (every view re-encoded)
+CROP_MAX_AREA = 0.8
+
+
+def subject_box(images: Sequence[Path], centred: bool = False) -> tuple[int, int, int, int] | None:
+    """The box ``(x0, y0, x1, y1)`` (input pixels, x1/y1 exclusive) holding every view's subject:
+    the union over views of the blocks brighter than :data:`SUBJECT_LEVEL` (mean over
+    :data:`SUBJECT_CELL`-pixel blocks, brightest channel), grown by :data:`SUBJECT_MARGIN` and
+    clipped to the frame. ``centred``: the box made symmetric about the frame's centre (the larger
+    margin kept on both sides). None when the box covers more than :data:`CROP_MAX_AREA` of the
+    frame or nothing is bright (then the whole frame is used). Reads only the images."""
+    lo = np.array([np.inf, np.inf])
+    hi = np.array([-np.inf, -np.inf])
+    width = height = 0
+    for path in images:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ReconstructionError(f"{path}: unreadable image")
+        height, width = img.shape[:2]
+        bright = img if img.ndim == 2 else img[..., :3].max(axis=2)
+        cells = cv2.resize(bright, (max(width // SUBJECT_CELL, 1), max(height // SUBJECT_CELL, 1)),
+                           interpolation=cv2.INTER_AREA)
+        ys, xs = np.nonzero(cells > SUBJECT_LEVEL * (257 if img.dtype == np.uint16 else 1))
+        if len(xs):
+            lo = np.minimum(lo, [xs.min() * width / cells.shape[1], ys.min() * height / cells.shape[0]])
+            hi = np.maximum(hi, [(xs.max() + 1) * width / cells.shape[1], (ys.max() + 1) * height / cells.shape[0]])
+    if not np.all(np.isfinite(lo)):
+        return None
+    x0, y0 = (int(max(np.floor(v) - SUBJECT_MARGIN, 0)) for v in lo)
+    x1, y1 = int(min(np.ceil(hi[0]) + SUBJECT_MARGIN, width)), int(min(np.ceil(hi[1]) + SUBJECT_MARGIN, height))
+    if centred:
+        mx, my = min(x0, width - x1), min(y0, height - y1)
+        x0, x1, y0, y1 = mx, width - mx, my, height - my
+    if (x1 - x0) * (y1 - y0) > CROP_MAX_AREA * width * height:
+        return None
+    return x0, y0, x1, y1
+
+
+def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path,
+                    box: tuple[int, int, int, int] | None = None) -> list[str]:
+    """Copy (scale 1, no box) or crop to ``box`` (x0, y0, x1, y1) and resize (INTER_AREA down,
+    INTER_CUBIC up) every image into ``folder``; PNGs written at compression 1 (speed)."""
     folder.mkdir(parents=True, exist_ok=True)
     names = []
     for stem, path in images.items():
         name = f"{stem}{Path(path).suffix.lower() or '.png'}"
-        if scale == 1.0:
+        if scale == 1.0 and box is None:
             shutil.copyfile(path, folder / name)
         else:
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise ReconstructionError(f"{path}: unreadable image")
+            if box is not None:
+                x0, y0, x1, y1 = box
+                img = img[y0:y1, x0:x1]
             h, w = img.shape[:2]
-            size = (int(round(w * scale)), int(round(h * scale)))  # as Intrinsics.scaled
-            interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
-            cv2.imwrite(str(folder / name), cv2.resize(img, size, interpolation=interp))
+            if scale != 1.0:
+                size = (int(round(w * scale)), int(round(h * scale)))  # as Intrinsics.scaled
+                interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
+                img = cv2.resize(img, size, interpolation=interp)
+            cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         names.append(name)
     return names
 
@@ -200,9 +273,11 @@ def _image_size(path: Path) -> tuple[int, int]:
     return img.shape[1], img.shape[0]
 
 
-def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intrinsics:
+def _camera_from_colmap(cam, scale_back: float | tuple[float, float], width: int, height: int,
+                        offset: tuple[float, float] = (0.0, 0.0)) -> Intrinsics:
     """A pycolmap PINHOLE / SIMPLE_RADIAL / RADIAL / OPENCV / FULL_OPENCV camera -> our Intrinsics
-    at the input resolution. FULL_OPENCV's rational denominator (k4..k6) has no place in our
+    at the input resolution: working pixels times ``scale_back`` (one factor, or x and y), plus
+    ``offset`` (the crop's top-left corner in input pixels). FULL_OPENCV's rational denominator (k4..k6) has no place in our
     five-term Brown lens: it is refitted by :func:`_brown_from_rational` (its deviation is
     reported by :func:`rational_refit_px`)."""
     p = np.asarray(cam.params, dtype=np.float64)
@@ -222,10 +297,11 @@ def _camera_from_colmap(cam, scale_back: float, width: int, height: int) -> Intr
         dist = (k1, k2, p1, p2, 0.0)
     elif cam.model_name == "FULL_OPENCV":
         fx, fy, cx, cy = p[:4]
-        dist = _brown_from_rational(p, width / scale_back, height / scale_back)[0]
+        dist = _brown_from_rational(p, cam.width, cam.height)[0]
     else:  # pragma: no cover - we only create these models
         raise ReconstructionError(f"unexpected COLMAP camera model {cam.model_name}")
-    return Intrinsics(width, height, fx * scale_back, fy * scale_back, cx * scale_back, cy * scale_back, dist)
+    bx, by = (scale_back, scale_back) if np.isscalar(scale_back) else scale_back
+    return Intrinsics(width, height, fx * bx, fy * by, cx * bx + offset[0], cy * by + offset[1], dist)
 
 
 def _brown_from_rational(p: np.ndarray, width: float, height: float) -> tuple[tuple, float]:
@@ -260,14 +336,17 @@ def rational_refit_px(cam) -> float:
     return _brown_from_rational(np.asarray(cam.params, dtype=np.float64), cam.width, cam.height)[1]
 
 
-def _observed_radius(rec) -> float:
-    """99th percentile of the triangulated keypoints' distance from the image centre, over the
-    half-diagonal (1 at the corners)."""
+def _observed_radius(rec, scale_back: tuple[float, float] = (1.0, 1.0), offset: tuple[float, float] = (0.0, 0.0),
+                     size: tuple[int, int] | None = None) -> float:
+    """99th percentile of the triangulated keypoints' distance from the input image's centre, over
+    its half-diagonal (1 at the corners); working pixels map to input ones as in
+    :func:`_camera_from_colmap`, ``size`` is the input (width, height) (default: the camera's)."""
     cam = next(iter(rec.cameras.values()))
-    xy = _observations(rec)[2]
+    xy = _observations(rec)[2] * scale_back + offset
     if not len(xy):
         return 0.0
-    r = np.linalg.norm(xy - [cam.width / 2, cam.height / 2], axis=1) / (0.5 * np.hypot(cam.width, cam.height))
+    width, height = size or (cam.width, cam.height)
+    r = np.linalg.norm(xy - [width / 2, height / 2], axis=1) / (0.5 * np.hypot(width, height))
     return float(np.percentile(r, 99))
 
 
@@ -372,13 +451,19 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     t0 = time.perf_counter()
     first = next(iter(images.values()))
     width, height = _image_size(Path(first))
-    names = _prepare_images(images, config.image_scale, image_dir)
+    box = subject_box(list(images.values()), centred=not config.known_intrinsics) if config.crop_to_subject else None
+    x0, y0, x1, y1 = box or (0, 0, width, height)
+    names = _prepare_images(images, config.image_scale, image_dir, box)
     sw, sh = _image_size(image_dir / names[0])
-    scale_back = width / sw
+    scale_back = ((x1 - x0) / sw, (y1 - y0) / sh)  # working pixel -> input pixel, after the crop's offset
+    offset = (float(x0), float(y0))
 
     reader = pycolmap.ImageReaderOptions()
     if config.known_intrinsics:
-        reader.camera_model, params = colmap_camera(intrinsics.scaled(sw / width))
+        sx, sy = 1 / scale_back[0], 1 / scale_back[1]
+        working = replace(intrinsics, width=sw, height=sh, fx=intrinsics.fx * sx, fy=intrinsics.fy * sy,
+                          cx=(intrinsics.cx - x0) * sx, cy=(intrinsics.cy - y0) * sy)
+        reader.camera_model, params = colmap_camera(working)
         reader.camera_params = ",".join(repr(float(v)) for v in params)
     else:
         reader.camera_model = "SIMPLE_RADIAL"
@@ -404,7 +489,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     if matcher == "capture_order":
         suffix = {Path(n).stem: Path(n).suffix for n in names}
         wanted = [v for v in order if v.name in suffix]
-        pairs = capture_order_pairs(wanted, config.sequential_overlap, config.link_window)
+        offsets = doubling_offsets(config.sequential_overlap) if config.pair_offsets == "doubling" else None
+        pairs = capture_order_pairs(wanted, config.sequential_overlap, config.link_window, offsets)
         pair_file = workdir / "pairs.txt"
         with open(pair_file, "w") as f:
             f.writelines(f"{a}{suffix[a]} {b}{suffix[b]}\n" for a, b in pairs)
@@ -478,12 +564,12 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         c2w = np.eye(4)
         c2w[:3, :3] = w2c[:3, :3].T
         c2w[:3, 3] = -w2c[:3, :3].T @ w2c[:3, 3]
-        cameras.append(Camera(_camera_from_colmap(img.camera, scale_back, width, height), c2w, stem))
+        cameras.append(Camera(_camera_from_colmap(img.camera, scale_back, width, height, offset), c2w, stem))
         registered.add(stem)
     order = {n: i for i, n in enumerate(images)}
     cameras.sort(key=lambda c: order[c.name])
     points = np.array([p.xyz for p in rec.points3D.values()], dtype=np.float64).reshape(-1, 3)
-    err = float(rec.compute_mean_reprojection_error()) * scale_back if len(points) else 0.0
+    err = float(rec.compute_mean_reprojection_error()) * float(np.mean(scale_back)) if len(points) else 0.0
     return ColmapResult(cameras=cameras, unregistered=[n for n in images if n not in registered],
                         reprojection_error_px=err if np.isfinite(err) else 0.0, points=points,
                         num_models=len(models), mean_track_length=float(rec.compute_mean_track_length())
@@ -491,7 +577,9 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
                         pairs=n_pairs, times_s={k: round(v, 3) for k, v in times.items()},
                         camera_model=next(iter(rec.cameras.values())).model_name, lens_steps=lens_steps,
                         lens_note=lens_note, rational_refit_px=rational_refit_px(next(iter(rec.cameras.values())))
-                        * scale_back, observed_radius_rel=_observed_radius(rec))
+                        * float(np.mean(scale_back)),
+                        observed_radius_rel=_observed_radius(rec, scale_back, offset, (width, height)),
+                        crop_box=box)
 
 
 @contextmanager
@@ -530,6 +618,9 @@ def _global_options(config: ColmapConfig, n_images: int):
     m.rotation_averaging.random_seed = config.seed
     m.global_positioning.random_seed = config.seed
     m.global_positioning.use_gpu = False
+    if config.global_tracks_per_view > 0:
+        m.track_required_tracks_per_view = config.global_tracks_per_view
+    m.skip_retriangulation = not config.global_retriangulate
     fixed = config.known_intrinsics
     ba = m.bundle_adjustment
     ba.refine_focal_length = not fixed

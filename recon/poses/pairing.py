@@ -3,15 +3,18 @@
 A rig (or a hand-held sweep) shoots each sequence in order, as a video's frames: a turntable
 ring is one revolution, its last frame next to its first. The pairs are
 
-* **within a sequence**: each frame with the next ``window`` frames (a sequential matcher's
-  overlap), wrapping round a closed sequence (loop closure: frame n-1 meets frames 0, 1, ...);
+* **within a sequence**: each frame with the frames ``offsets`` ahead of it: the next ``window``
+  frames (``1 .. window``, a sequential matcher's overlap), or doubling steps ``1, 2, 4, ..`` up
+  to ``window`` (:func:`doubling_offsets`: a few short baselines for matching, a few long ones for
+  triangulation, ``log2(window) + 1`` pairs per frame instead of ``window``), wrapping round a
+  closed sequence (loop closure: frame n-1 meets frames 0, 1, ...);
 * **between sequences**: every two sequences are linked at the same phase of their sweep. Frame
   ``a`` of the shorter sequence (``n_s`` frames) meets frames ``round(a n_l / n_s) +- link_window``
   of the longer one (``n_l``): on a turntable, the views shot at the same turntable angle from
   the other ring. Single views (``frames == 1``) meet the ``2 link_window + 1`` nearest frames by
   capture time in every sequence instead.
 
-Pairs grow as ``N (window + (S - 1)(2 link_window + 1))`` for N views in S sequences: linear in
+Pairs grow as ``N (len(offsets) + (S - 1)(2 link_window + 1))`` for N views in S sequences: linear in
 N, where exhaustive matching is ``N (N - 1) / 2``. Only the shooting order enters (sequence, frame
 index, frame count, closed, capture time): no pose, no file name.
 """
@@ -20,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["ViewOrder", "capture_order_pairs", "write_pair_list"]
+__all__ = ["ViewOrder", "capture_order_pairs", "doubling_offsets", "write_pair_list"]
 
 
 @dataclass(frozen=True)
@@ -44,12 +47,19 @@ class ViewOrder:
             raise ValueError(f"view {self.name!r}: frame {self.frame} outside 0..{self.frames - 1}")
 
 
-def _within(members: list[ViewOrder], window: int) -> set[tuple[str, str]]:
-    """Each frame with its next ``window`` frames, wrapping when the sequence is closed."""
+def doubling_offsets(window: int) -> tuple[int, ...]:
+    """``(1, 2, 4, ..)``: the powers of two up to ``window`` (>= 1); 12 -> (1, 2, 4, 8)."""
+    if window < 1:
+        raise ValueError(f"window must be >= 1, got {window}")
+    return tuple(1 << k for k in range(window.bit_length()))
+
+
+def _within(members: list[ViewOrder], offsets: Sequence[int]) -> set[tuple[str, str]]:
+    """Each frame with the frames ``offsets`` ahead, wrapping when the sequence is closed."""
     n = len(members)
     pairs = set()
     for i in range(n):
-        for step in range(1, window + 1):
+        for step in offsets:
             j = i + step
             if j >= n:
                 if not members[0].closed:
@@ -82,16 +92,22 @@ def _near_in_time(view: ViewOrder, members: list[ViewOrder], count: int) -> set[
     return {(view.name, m.name) for m in nearest}
 
 
-def capture_order_pairs(views: Sequence[ViewOrder], window: int = 8, link_window: int = 1) -> list[tuple[str, str]]:
+def capture_order_pairs(views: Sequence[ViewOrder], window: int = 8, link_window: int = 1,
+                        offsets: Sequence[int] | None = None) -> list[tuple[str, str]]:
     """The image pairs to match, from the shooting order (module docstring).
 
     views: every view to pose, any order (names unique). window: frames matched ahead within a
     sequence (>= 1). link_window: half-width of the same-phase link between sequences (>= 0).
+    offsets: the frame steps matched within a sequence (each >= 1), instead of ``1 .. window``
+    (e.g. :func:`doubling_offsets`).
     Returns unique unordered pairs, each ``(first, second)`` in the order of ``views``, sorted by
     that order: deterministic for a given input.
     """
     if window < 1 or link_window < 0:
         raise ValueError(f"window must be >= 1 and link_window >= 0, got {window}, {link_window}")
+    steps = tuple(range(1, window + 1)) if offsets is None else tuple(offsets)
+    if not steps or min(steps) < 1:
+        raise ValueError(f"offsets must be >= 1, got {steps}")
     names = [v.name for v in views]
     if len(set(names)) != len(names):
         raise ValueError("view names must be unique")
@@ -108,7 +124,7 @@ def capture_order_pairs(views: Sequence[ViewOrder], window: int = 8, link_window
     multi = [m for m in sequences.values() if len(m) > 1]
     singles = [m[0] for m in sequences.values() if len(m) == 1]
     for members in multi:
-        pairs |= _within(members, window)
+        pairs |= _within(members, steps)
     for i, a in enumerate(multi):
         for b in multi[i + 1:]:
             pairs |= _between(a, b, link_window)

@@ -40,8 +40,10 @@ disjoint sample ranges merge exactly (:func:`render.film.merge_results`): Owen-s
 points (``sampler="sobol"``, the default, :mod:`render.sobol`; sample s of a pixel is point s div
 R of its replicate s mod R, R = render.sobol.replicates_for(spp) (4, 8 or 16), and the variance
 image comes from the R replicate means, :meth:`render.film.Film.variance`: R - 1 degrees of
-freedom per pixel, so per-pixel tests against it use Student-t thresholds), or an independent
-hash per dimension (``sampler="independent"``, :mod:`render.sampling`; the variance image is the
+freedom per pixel, so per-pixel tests against it use Student-t thresholds), the same points
+from one sequence per pixel (``sampler="sobol-blocks"``: sample s is point s, so a render is one
+net rather than R; the variance image, from R consecutive blocks, is conservative: render.sobol),
+or an independent hash per dimension (``sampler="independent"``, :mod:`render.sampling`; the variance image is the
 sample variance over n).
 """
 from __future__ import annotations
@@ -56,7 +58,7 @@ from ..camera import Camera
 from ..film import Film, RenderResult
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
-from ..sobol import REPLICATES, SAMPLERS, replicates_for
+from ..sobol import REPLICATES, SAMPLERS, block_size, key_replicates, replicate_of, replicates_for
 from .path_kernels import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
                            PinholeCamera, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays,
                            kernel_scene, last_bounce_queue, shade_bounce)
@@ -210,8 +212,9 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     """The wavefront driver of ``path`` and ``direct``: batches of ``settings.batch_paths`` camera
     samples over ``settings.threads`` threads, accumulated in batch order (the same sums
     whatever the threads). options: a path or direct ``Options`` (an options type without
-    ``sampler`` gets the independent sampler). The Sobol sampler's film also keeps per-replicate sums
-    (:class:`render.film.Film`), so its variance image is the replicates'."""
+    ``sampler`` gets the independent sampler). The Sobol samplers' film also keeps per-replicate
+    (or per-block, "sobol-blocks") sums (:class:`render.film.Film`), so its variance image is the
+    replicates'."""
     t0 = time.perf_counter()
     a, b = sample_range
     roulette, rr_depth = (False, 0) if direct else (options.roulette, options.rr_depth)
@@ -223,16 +226,18 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     total = k.width * k.height * (b - a)
     chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
     kernel_scene_of(ps)
-    replicates = replicates_for(settings.spp)
+    replicates = replicates_for(settings.spp)  # of the variance estimate
+    block = block_size(sampler, settings.spp)  # 0: interleaved replicates, else consecutive blocks
+    keys_r = key_replicates(sampler, settings.spp)  # 1 under "sobol-blocks": one sequence per pixel
 
     def work(chunk):
-        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, replicates)
+        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, keys_r)
 
     film = Film(k.width, k.height)
     npix = k.width * k.height
     if cfg.sampler == SAMPLER_SOBOL:
         film.r1 = np.zeros((replicates, npix, 3))
-        film.rn = np.bincount(np.arange(a, b) % replicates, minlength=replicates).astype(np.int64)
+        film.rn = np.bincount(replicate_of(np.arange(a, b), replicates, block), minlength=replicates).astype(np.int64)
     rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:
@@ -240,7 +245,7 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
         for ch, (pix, L, nr) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
             accumulate(film.s1, film.s2, film.n, pix, L)
             if film.r1 is not None:
-                accumulate_replicates(film.r1, ch[0], npix, a, L)
+                accumulate_replicates(film.r1, ch[0], npix, a, L, block)
             rays += nr
             if progress is not None:
                 progress(ch[1], total)

@@ -53,9 +53,24 @@ _TMAX_CAP = 3e38  # largest tmax handed to Embree (float32)
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 _SOBOL_V1 = DIRECTIONS[1].astype(np.uint64)  # (32,) Sobol dimension 1 (a global, frozen into the compiled code)
+
+
+def _v1_reversed_byte_table() -> np.ndarray:
+    """(4, 256) uint64: [b, x] = the XOR over the set bits t of x of reverse32(v1[8 b + t]), so
+    reverse32(dimension 1 at index j) is the XOR of four lookups, one per byte of j."""
+    rev = np.array([int(f"{int(v):032b}"[::-1], 2) for v in DIRECTIONS[1]], np.uint64)
+    table = np.zeros((4, 256), np.uint64)
+    for b in range(4):
+        for x in range(1, 256):
+            low = x & -x
+            table[b, x] = table[b, x ^ low] ^ rev[8 * b + low.bit_length() - 1]
+    return table
+
+
+_SOBOL_V1_REV_BYTES = _v1_reversed_byte_table()
 _MASK32 = np.uint64(0xFFFFFFFF)
 _HI32 = np.uint64(0xFFFFFFFF00000000)
-_U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
+_U0, _U1, _U2, _U4, _U8, _U16, _U24, _U32, _U255 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 24, 32, 255))
 _INV_2_32 = 1.0 / 4294967296.0
 _ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
 
@@ -159,16 +174,46 @@ def _reverse32(v):
 
 
 @njit(inline="always", **_JIT)
-def _nested(x, h):
-    """render.sobol.nested_scramble of a 32-bit value (in a uint64) by hash h."""
+def _laine_karras(x, h):
+    """The permutation inside render.sobol.nested_scramble, on a bit-reversed 32-bit value x
+    (in a uint64) keyed by h's low 32 bits: _nested(x, h) = _reverse32(_laine_karras(_reverse32(x), h))."""
     seed = h & _MASK32
-    x = _reverse32(x)
     x = (x ^ (x * np.uint64(0x3D20ADEA))) & _MASK32
     x = (x + seed) & _MASK32
     x = (x * ((seed >> _U16) | _U1)) & _MASK32
     x = (x ^ (x * np.uint64(0x05526C56))) & _MASK32
     x = (x ^ (x * np.uint64(0x53A22864))) & _MASK32
-    return _reverse32(x)
+    return x
+
+
+@njit(inline="always", **_JIT)
+def _nested(x, h):
+    """render.sobol.nested_scramble of a 32-bit value (in a uint64) by hash h."""
+    return _reverse32(_laine_karras(_reverse32(x), h))
+
+
+@njit(inline="always", **_JIT)
+def _shuffled_index(key, h_index):
+    """The group's shuffled Sobol index j = _nested(i, h) ^ _nested(0, h) of the key's index i
+    (one bit reversal fewer: the two scrambles' outer reversals merge)."""
+    return _reverse32(_laine_karras(_reverse32(key & _MASK32), h_index) ^ _laine_karras(_U0, h_index))
+
+
+@njit(inline="always", **_JIT)
+def _scrambled_dim0(j, h):
+    """Owen-scrambled Sobol dimension 0 at index j: _nested(_reverse32(j), h) ^ (h >> 32), the
+    van der Corput value's two reversals cancelled."""
+    return _reverse32(_laine_karras(j, h)) ^ (h >> _U32)
+
+
+@njit(inline="always", **_JIT)
+def _scrambled_dim1(j, h):
+    """Owen-scrambled Sobol dimension 1 at index j: _nested(v, h) ^ (h >> 32) with v the XOR of
+    the direction numbers over j's set bits, read bit-reversed a byte of j at a time from
+    _SOBOL_V1_REV_BYTES (four lookups instead of a loop over the bits)."""
+    rv = (_SOBOL_V1_REV_BYTES[0, j & _U255] ^ _SOBOL_V1_REV_BYTES[1, (j >> _U8) & _U255]
+          ^ _SOBOL_V1_REV_BYTES[2, (j >> _U16) & _U255] ^ _SOBOL_V1_REV_BYTES[3, (j >> _U24) & _U255])
+    return _reverse32(_laine_karras(rv, h)) ^ (h >> _U32)
 
 
 @njit(inline="always", **_JIT)
@@ -181,18 +226,8 @@ def _sobol(key, dim):
         comp = 1
     h_index = _mix64((key & _HI32) + np.uint64(dim - comp + 1) * _GOLDEN)
     h_value = _mix64(h_index ^ (np.uint64(comp + 1) * _M1))
-    j = _nested(key & _MASK32, h_index) ^ _nested(_U0, h_index)  # maps [0, 2^m) onto itself
-    if comp == 0:  # van der Corput: the reversed index
-        v = _reverse32(j)
-    else:  # Sobol dimension 1, over the index's set bits only (j < 2^m: m iterations)
-        v = _U0
-        k = 0
-        while j != _U0:
-            if (j & _U1) != _U0:
-                v ^= _SOBOL_V1[k]
-            j >>= _U1
-            k += 1
-    x = _nested(v, h_value) ^ (h_value >> _U32)
+    j = _shuffled_index(key, h_index)  # maps [0, 2^m) onto itself
+    x = _scrambled_dim0(j, h_value) if comp == 0 else _scrambled_dim1(j, h_value)
     return np.float64(x) * _INV_2_32
 
 
@@ -204,18 +239,8 @@ def _sobol2(key, dim0):
     h_index = _mix64((key & _HI32) + np.uint64(dim0 + 1) * _GOLDEN)
     h0 = _mix64(h_index ^ _M1)
     h1 = _mix64(h_index ^ (np.uint64(2) * _M1))
-    j = _nested(key & _MASK32, h_index) ^ _nested(_U0, h_index)
-    v0 = _reverse32(j)
-    v1 = _U0
-    k = 0
-    while j != _U0:
-        if (j & _U1) != _U0:
-            v1 ^= _SOBOL_V1[k]
-        j >>= _U1
-        k += 1
-    x0 = _nested(v0, h0) ^ (h0 >> _U32)
-    x1 = _nested(v1, h1) ^ (h1 >> _U32)
-    return np.float64(x0) * _INV_2_32, np.float64(x1) * _INV_2_32
+    j = _shuffled_index(key, h_index)
+    return np.float64(_scrambled_dim0(j, h0)) * _INV_2_32, np.float64(_scrambled_dim1(j, h1)) * _INV_2_32
 
 
 @njit(inline="always", **_JIT)
@@ -815,13 +840,15 @@ def accumulate(s1, s2, cnt, pix, L):
 
 
 @njit(**_JIT)
-def accumulate_replicates(r1, start, npix, sample0, L):
+def accumulate_replicates(r1, start, npix, sample0, L, block=0):
     """Per-replicate sums of the Sobol sampler: r1[s mod R, pixel] += L for the paths of flat
-    indices [start, start + len(L)) (flat = (s - sample0) * npix + pixel); r1 (R, npix, 3)."""
+    indices [start, start + len(L)) (flat = (s - sample0) * npix + pixel); r1 (R, npix, 3).
+    block > 0 ("sobol-blocks", render.sobol.block_size): r1[min(s div block, R - 1), pixel]."""
     nrep = r1.shape[0]
     for i in range(len(L)):
         flat = start + i
         p = flat % npix
-        r = (sample0 + flat // npix) % nrep
+        s = sample0 + flat // npix
+        r = min(s // block, nrep - 1) if block > 0 else s % nrep
         for c in range(3):
             r1[r, p, c] += L[i, c]

@@ -20,7 +20,7 @@ STRATEGIES = ("mis", "light", "bsdf")
 #: MIS heuristics (Veach and Guibas 1995) and the exponent each raises density ratios to
 HEURISTICS = {"power": 2.0, "balance": 1.0}
 #: random number samplers (render.sobol.SAMPLERS): Owen-scrambled Sobol, independent hash
-SAMPLER_NAMES = ("sobol", "independent")
+SAMPLER_NAMES = ("sobol", "sobol-blocks", "independent")
 #: the RenderSettings fields that belong to some integrators' options only (None: not given)
 OPTION_NAMES = ("roulette", "rr_depth", "strategy", "heuristic", "photons_per_pass", "sampler")
 
@@ -37,7 +37,7 @@ def check_heuristic(heuristic: str) -> None:
 
 def check_sampler(sampler: str) -> None:
     if sampler not in SAMPLER_NAMES:
-        raise ValueError(f"sampler must be sobol or independent, got {sampler!r}")
+        raise ValueError(f"sampler must be sobol, sobol-blocks or independent, got {sampler!r}")
 
 
 def heuristic_exponent(heuristic: str) -> float:
@@ -71,8 +71,9 @@ class RenderSettings:
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth (path,
     volpath, bdpt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
-    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol; their default)
-    or "independent" (direct, path).
+    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol; their default),
+    "sobol-blocks" (one Sobol sequence per pixel, variance from its blocks: a conservative
+    estimate) or "independent" (direct, path).
     """
 
     integrator: str = "auto"

@@ -80,3 +80,32 @@ def test_bad_order_is_refused():
         capture_order_pairs([ViewOrder("a", "s", 0, 2, True, 0), ViewOrder("b", "s", 0, 2, True, 1)])
     with pytest.raises(ValueError, match="frame 2"):
         ViewOrder("a", "s", 2, 2, True, 0)
+
+
+def test_doubling_offsets_give_short_and_long_baselines_in_closed_form():
+    """Steps 1, 2, 4, 8 within each ring of a 1000-view layout shrunk to rings of 32 + 32 + 32 and
+    a held-out 8: each train frame meets the frames 1, 2, 4 and 8 ahead (wrapping: loop closure)
+    and nothing between; the rings are linked at the same phase whatever the steps; pairs follow
+    ``N_ring * len(offsets)`` per ring (the 8-ring: steps 1 and 2 give 16 pairs, step 4 pairs
+    each frame with its opposite, 4 pairs, step 8 is the frame itself)."""
+    from recon.poses.pairing import doubling_offsets
+
+    assert doubling_offsets(12) == (1, 2, 4, 8) and doubling_offsets(1) == (1,) and doubling_offsets(16)[-1] == 16
+    views = rig_order((("train", 32), ("train", 32), ("train", 32), ("test", 8)))
+    pairs = unordered(capture_order_pairs(views, window=12, link_window=1, offsets=doubling_offsets(12)))
+    ring = [f"train_{k:03d}" for k in range(32, 64)]
+    for k in range(32):
+        ahead = {d for d in range(1, 17) if frozenset((ring[k], ring[(k + d) % 32])) in pairs}
+        assert ahead == {1, 2, 4, 8}, (k, ahead)
+    assert frozenset(("train_063", "train_032")) in pairs  # loop closure
+    # ring 0 and ring 2 (not adjacent in shooting order) are linked too: same phase +- 1
+    assert {p for p in pairs if "train_010" in p and p & {f"train_{k:03d}" for k in range(64, 96)}} == \
+        {frozenset(("train_010", f"train_{74 + d:03d}")) for d in (-1, 0, 1)}
+    # held-out frame k meets train frames 4k-1..4k+1 of each ring (32 / 8 = 4)
+    assert {p for p in pairs if "test_003" in p and p & set(ring)} == \
+        {frozenset(("test_003", ring[12 + d])) for d in (-1, 0, 1)}
+    within = 3 * 32 * 4 + (8 + 8 + 4)
+    links = 3 * 32 * 3 + 3 * 8 * 3
+    assert len(pairs) == within + links == 764
+    with pytest.raises(ValueError, match="offsets"):
+        capture_order_pairs(views, offsets=(0, 1))
