@@ -34,12 +34,24 @@ import numpy as np
 
 from ..camera import Camera, Intrinsics
 
-__all__ = ["SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "MIN_COS", "SAMPLE_DTYPES", "check_rays", "slab_coordinates",
+__all__ = ["SlabGeometry", "VQRadiance", "LightSlab", "SlabHits", "MIN_COS", "EMPTY_DEPTH", "FAR_DEPTH",
+           "DEPTH_SEARCH_STEPS", "VISIBILITY_TOL", "SAMPLE_DTYPES", "check_rays", "slab_coordinates",
            "sheared_camera"]
 
 #: rays whose direction makes |cos| below this with a slab's normal are treated as parallel
 #: to its planes (the plane-intersection denominator would be near zero): they miss the slab
 MIN_COS = 1e-6
+
+#: the depth mode's depth search (:mod:`render.lightfield.rendering`): a depth sample below
+#: EMPTY_DEPTH x D (D: the slab's uv -> st distance) means the ray hit nothing, and is read as a
+#: surface at FAR_DEPTH x D (background "at infinity": rays parallel to the eye ray, shift -0.9999)
+EMPTY_DEPTH = 1e-6
+FAR_DEPTH = 1e4
+#: fixed-point steps per uv tap when searching the eye ray's depth
+DEPTH_SEARCH_STEPS = 3
+#: a uv tap sees the eye ray's surface when its depth agrees in D / depth within this (2% of the
+#: depth near the st plane): looser loses occlusion, tighter rejects slanted surfaces' taps
+VISIBILITY_TOL = 0.02
 
 
 def _corners(c, what: str) -> np.ndarray:

@@ -26,7 +26,8 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
-from .geometry import MIN_COS  # numba freezes it as a constant
+# numba freezes these as constants
+from .geometry import DEPTH_SEARCH_STEPS, EMPTY_DEPTH, FAR_DEPTH, MIN_COS, VISIBILITY_TOL
 
 __all__ = ["N_PARAMS", "MODE_IDS", "HALF_TO_FLOAT", "select_band", "interpolate_band"]
 
@@ -119,6 +120,18 @@ def _row(codes, vq, dims, tdims, iv, iu, it, is_):
     return np.int64(codes[tile]) * 16 + (iv & 1) * 8 + (iu & 1) * 4 + (it & 1) * 2 + (is_ & 1)
 
 
+@njit(inline="always", **_JIT)
+def _seen_depth(depth, lut, nu, ns, nt, jv, ju, cu, cv, cs, ct, ks, kt, D, z):
+    """Depth seen by uv sample (jv, ju) at depth ``z`` of the eye ray (sample coordinates cu, cv,
+    cs, ct): its nearest st sample's depth on its ray through the eye ray's point at z; empty
+    samples read FAR_DEPTH x D (the numpy reference: ``rendering._depth_search``)."""
+    shift = D / z - 1.0
+    js, _, _, _, _ = _taps(cs + shift * ks * (cu - ju), ns, False)
+    jt, _, _, _, _ = _taps(ct + shift * kt * (cv - jv), nt, False)
+    d = _sample(depth[((jv * nu + ju) * nt + jt) * ns + js], lut)
+    return d if d > EMPTY_DEPTH * D else FAR_DEPTH * D
+
+
 @njit(**_JIT)
 def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, lut, mode, best, k, row0, row1, width, out):
     """Radiance of the pixels of rows [row0, row1) whose ``best`` slab is ``k`` into ``out``
@@ -145,20 +158,38 @@ def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, lut, mode
                 continue
             ok, cos, u, v, s, t = _crossing(params, k, j + 0.5, y)
             cu, cv, cs, ct = u * nu - 0.5, v * nv - 0.5, s * ns - 0.5, t * nt - 0.5
-            shift = 0.0
-            if mode == 4:
-                zeta = params[k, 19]
-                if has_depth:
-                    jv, _, _, _, _ = _taps(cv, nv, False)
-                    ju, _, _, _, _ = _taps(cu, nu, False)
-                    jt, _, _, _, _ = _taps(ct, nt, False)
-                    js, _, _, _, _ = _taps(cs, ns, False)
-                    z = _sample(depth[((jv * nu + ju) * nt + jt) * ns + js], lut)
-                    if z > 1e-6 * D:
-                        zeta = z
-                shift = D / zeta - 1.0
             v0, wv0, v1, wv1, nvt = _taps(cv, nv, lin_uv)
             u0, wu0, u1, wu1, nut = _taps(cu, nu, lin_uv)
+            shift = 0.0
+            search = mode == 4 and has_depth
+            visible_total = 0.0
+            zeta = params[k, 19]
+            if search:  # the focal depth and the visible uv taps (rendering._depth_search)
+                jv, _, _, _, _ = _taps(cv, nv, False)
+                ju, _, _, _, _ = _taps(cu, nu, False)
+                z0 = _seen_depth(depth, lut, nu, ns, nt, jv, ju, cu, cv, cs, ct, ks, kt, D, D)
+                best_z = np.inf
+                for a in range(nvt):
+                    iv = v0 if a == 0 else v1
+                    for bb in range(nut):
+                        iu = u0 if bb == 0 else u1
+                        z = z0
+                        for _ in range(DEPTH_SEARCH_STEPS):
+                            z = _seen_depth(depth, lut, nu, ns, nt, iv, iu, cu, cv, cs, ct, ks, kt, D, z)
+                        zc = _seen_depth(depth, lut, nu, ns, nt, iv, iu, cu, cv, cs, ct, ks, kt, D, z)
+                        if abs(D / zc - D / z) <= VISIBILITY_TOL and z < best_z:
+                            best_z = z
+                zeta = best_z if best_z < np.inf else z0
+                for a in range(nvt):
+                    iv = v0 if a == 0 else v1
+                    wv = wv0 if a == 0 else wv1
+                    for bb in range(nut):
+                        iu = u0 if bb == 0 else u1
+                        zc = _seen_depth(depth, lut, nu, ns, nt, iv, iu, cu, cv, cs, ct, ks, kt, D, zeta)
+                        if abs(D / zc - D / zeta) <= VISIBILITY_TOL:
+                            visible_total += wv * (wu0 if bb == 0 else wu1)
+            if mode == 4:
+                shift = D / zeta - 1.0
             r = 0.0
             g = 0.0
             b = 0.0
@@ -169,6 +200,9 @@ def interpolate_band(params, dims, rad, depth, codes, codebook, tdims, lut, mode
                 for bb in range(nut):
                     iu = u0 if bb == 0 else u1
                     wu = wu0 if bb == 0 else wu1
+                    if visible_total > 0.0:  # only the taps that see the surface, renormalized
+                        zc = _seen_depth(depth, lut, nu, ns, nt, iv, iu, cu, cv, cs, ct, ks, kt, D, zeta)
+                        wu = wu / visible_total if abs(D / zc - D / zeta) <= VISIBILITY_TOL else 0.0
                     s0, ws0, s1, ws1, nst = _taps(cs + shift * ks * (cu - iu), ns, lin_st)
                     for c_ in range(ntt):
                         it = t0 if c_ == 0 else t1

@@ -6,9 +6,11 @@ Lumigraph (Gortler et al. 1996) and of dynamically reparameterized light fields 
 2000): the eye ray is intersected with a focal surface (the slab's depth where it has one, else
 the focal plane ``focal_depth``), and each of the four nearest uv samples is looked up
 bilinearly where *its* ray through that focal point crosses st. Coordinates outside a quad mean
-the ray misses the slab; inside, interpolation clamps to the edge samples. The focal surface is
-the depth of the *nearest* sample: at a silhouette it may belong to the background (0: the
-focal plane is used) or to the other surface. Slab geometry and conventions:
+the ray misses the slab; inside, interpolation clamps to the edge samples. With depth samples
+the focal depth is searched per eye ray and occluded taps are dropped (:func:`_depth_search`:
+the nearest sample's depth alone belongs to another surface wherever the nearest uv sample sees
+past a silhouette, which ghosted the box over the board and the background at uv 8); empty
+samples are background at FAR_DEPTH x D. Slab geometry and conventions:
 :mod:`render.lightfield.geometry`.
 
 Two implementations of the same math: :func:`render_rays` / :func:`lookup` for arbitrary rays
@@ -24,7 +26,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..camera import Camera
-from .geometry import LightSlab, SlabHits, VQRadiance, check_rays, slab_coordinates
+from .geometry import (DEPTH_SEARCH_STEPS, EMPTY_DEPTH, FAR_DEPTH, VISIBILITY_TOL, LightSlab, SlabHits, VQRadiance,
+                       check_rays, slab_coordinates)
 
 __all__ = ["MODES", "lookup", "select_slabs", "render_rays", "render_pinhole"]
 
@@ -75,6 +78,49 @@ def _fetch(radiance, iv, it, iu, is_) -> np.ndarray:
     return np.asarray(radiance).reshape(-1, 3).take(idx, axis=0).astype(np.float32, copy=False)
 
 
+def _depth_search(depth: np.ndarray, shape, D: float, ks: float, kt: float, cu, cv, cs, ct, iu, iv
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The depth mode's focal depth per eye ray and which uv taps see it.
+
+    depth: the slab's (Nv Nu Nt Ns,) depth samples (float32 or float16); shape (Nu, Nv, Ns, Nt);
+    cu, cv, cs, ct (N,) the eye rays' sample coordinates; iu (N, C), iv (N, A) their uv taps.
+    Returns ``(zeta (N,) float64 distance from the uv plane, visible (N, A, C) bool)``.
+
+    The depth "seen by uv sample U at depth z" is U's nearest st sample's depth on U's ray through
+    the eye ray's point at z (empty samples read as FAR_DEPTH x D). Start: z0, the nearest uv
+    sample's depth at the eye ray's st point (the former focal surface). Each uv tap then follows
+    z <- its depth at z for DEPTH_SEARCH_STEPS steps, and its z is a candidate when the tap's
+    depth there agrees with it (|D / z' - D / z| <= VISIBILITY_TOL): the tap sees a surface on
+    the eye ray. The eye sees the nearest candidate (z0 when there is none). A tap is visible
+    when its depth at that zeta agrees with zeta; the others look at an occluder or past the
+    silhouette and get no weight (the caller renormalizes the visible taps' uv weights)."""
+    nu, nv, ns, nt = shape
+    cu, cv, cs, ct = (np.asarray(c, np.float64) for c in (cu, cv, cs, ct))
+
+    def nearest(c, m):
+        return np.floor(np.clip(c, 0.0, m - 1.0) + 0.5).astype(np.intp)
+
+    def seen(jv, ju, z):
+        shift = D / z - 1.0
+        js, jt = nearest(cs + shift * ks * (cu - ju), ns), nearest(ct + shift * kt * (cv - jv), nt)
+        d = depth.take(((jv * nu + ju) * nt + jt) * ns + js).astype(np.float64)
+        return np.where(d > EMPTY_DEPTH * D, d, FAR_DEPTH * D)
+
+    z0 = seen(nearest(cv, nv), nearest(cu, nu), np.full(len(cu), D))
+    best = np.full(len(cu), np.inf)
+    for a in range(iv.shape[1]):
+        for c in range(iu.shape[1]):
+            z = z0
+            for _ in range(DEPTH_SEARCH_STEPS):
+                z = seen(iv[:, a], iu[:, c], z)
+            ok = np.abs(D / seen(iv[:, a], iu[:, c], z) - D / z) <= VISIBILITY_TOL
+            best = np.where(ok & (z < best), z, best)
+    zeta = np.where(np.isfinite(best), best, z0)
+    visible = np.stack([np.stack([np.abs(D / seen(iv[:, a], iu[:, c], zeta) - D / zeta) <= VISIBILITY_TOL
+                                  for c in range(iu.shape[1])], -1) for a in range(iv.shape[1])], 1)
+    return zeta, visible
+
+
 def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
     """(N, 3) float32 radiance at slab parameters u, v, s, t (N,) in [0, 1] (float32 or float64).
 
@@ -92,17 +138,17 @@ def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
     lin_st = mode in ("st", "quadrilinear", "depth")
     iu, wu = _axis(cu, nu, lin_uv)
     iv, wv = _axis(cv, nv, lin_uv)
+    visible = None
     if mode == "depth":
         D = g.distance
-        zeta = np.full(n, D if slab.focal_depth is None else slab.focal_depth, np.float32)
-        if slab.depth is not None:
-            near = [_axis(c, m, False)[0][:, 0] for c, m in ((cv, nv), (cu, nu), (ct, nt), (cs, ns))]
-            z = np.asarray(slab.depth).reshape(-1).take(((near[0] * nu + near[1]) * nt + near[2]) * ns + near[3]
-                                                        ).astype(np.float32, copy=False)
-            zeta = np.where(z > 1e-6 * D, z, zeta)  # 0 = no surface: keep the focal plane
-        shift = D / zeta - 1.0
         ks = g.uv_size[0] * ns / (g.st_size[0] * nu)
         kt = g.uv_size[1] * nt / (g.st_size[1] * nv)
+        if slab.depth is None:
+            zeta = np.full(n, D if slab.focal_depth is None else slab.focal_depth, np.float64)
+        else:
+            zeta, visible = _depth_search(np.asarray(slab.depth).reshape(-1), g.shape, D, ks, kt, cu, cv, cs, ct,
+                                          iu, iv)
+        shift = D / zeta - 1.0
         is_, ws = _axis(cs[:, None] + (shift * ks)[:, None] * (cu[:, None] - iu), ns, True)  # (N, 2, 2)
         it, wt = _axis(ct[:, None] + (shift * kt)[:, None] * (cv[:, None] - iv), nt, True)
     else:
@@ -120,6 +166,13 @@ def _interpolate(slab: "LightSlab", u, v, s, t, mode: str) -> np.ndarray:
         w = w_row
     else:
         w = (w_row[:, :, None] * w_col[:, None, :]).reshape(n, -1)
+    if visible is not None:  # keep the uv taps that see the surface, their uv weights renormalized
+        A, B, C, E = iv.shape[1], it.shape[-1], iu.shape[1], is_.shape[-1]
+        w_uv = (np.ones((n, A, 1)) if wv is None else wv[:, :, None]) * (np.ones((n, 1, C)) if wu is None else wu[:, None, :])
+        total = (w_uv * visible).sum(axis=(1, 2))
+        some = total > 0  # else no tap sees it: every tap with its uv weight, as without depth
+        keep = np.where(some[:, None, None], visible / np.where(some, total, 1.0)[:, None, None], 1.0)
+        w = (w.reshape(n, A, B, C, E) * keep[:, :, None, :, None]).reshape(n, -1)
     return np.einsum("nk,nkc->nc", w, vals)
 
 
