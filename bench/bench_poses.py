@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import copy
 import csv
+import json
 import os
 import tempfile
 import time
@@ -122,6 +123,12 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
     from pipeline.stages.poses import PosesConfig, run_poses
 
     rows = []
+    # rows of an earlier run (other code, other load) are kept apart, never mixed into ``growth``
+    previous = RESULTS_DIR / "bench_poses_scale.json"
+    earlier = []
+    if previous.is_file():
+        old = json.loads(previous.read_text())
+        earlier = old.get("earlier_rows", []) + [{**r, "run_time": old.get("time")} for r in old.get("rows", [])]
     with tempfile.TemporaryDirectory(prefix="bench-poses-scale-") as tmp:
         root = keep or Path(tmp)
         for views in view_counts:
@@ -147,7 +154,8 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                 row = {"views": views, "config": cfg_name, "matcher": m.get("matcher"), "mapper": m.get("mapper"),
                        "pairs": m.get("pairs"), "extract_s": m.get("extract_time_s"), "match_s": m.get("match_time_s"),
                        "map_s": m.get("map_time_s"), "refine_s": m.get("refine_time_s"),
-                       "first_octave": m.get("first_octave"), "poses_wall_s": round(time.perf_counter() - t0, 1),
+                       "first_octave": m.get("first_octave"), "crop_box": m.get("crop_box"),
+                       "poses_wall_s": round(time.perf_counter() - t0, 1),
                        "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
                        "rotation_error_deg_mean": m.get("rotation_error_deg_mean"),
                        "rotation_error_deg_max": m.get("rotation_error_deg_max"),
@@ -155,7 +163,7 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                        "load_avg_1min_before": round(load_before, 2), "load_avg_1min_after": round(os.getloadavg()[0], 2)}
                 rows.append(row)
                 print(row, flush=True)
-                write_result("bench_poses_scale", {"rows": rows, "growth": growth(rows),
+                write_result("bench_poses_scale", {"rows": rows, "growth": growth(rows), "earlier_rows": earlier,
                                                    "layouts": {str(k): v for k, v in LAYOUTS.items()},
                                                    "note": "one run per cell, poses stage wall time; 1280x960, "
                                                            "known intrinsics; shared 2-core machine (load average): "
@@ -163,16 +171,39 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                                                            "compared, not a load that changed between them"})
 
 
+#: ``colmap_config`` modifiers: token -> ColmapConfig field (the value parsed from what follows
+#: the prefix, or the fixed value)
+MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "ba": ("final_ba_iterations", int),
+             "nocrop": ("crop_to_subject", False), "consecutive": ("pair_offsets", "consecutive"),
+             "noretri": ("global_retriangulate", False)}
+
+
 def colmap_config(name: str):
-    """``auto`` (the stage's defaults) or ``MATCHER+MAPPER[+oOCTAVE]`` (e.g. ``capture_order+global+o0``:
-    SIFT's first octave 0) -> ColmapConfig."""
+    """``auto`` (the stage's defaults) or ``[auto|MATCHER+MAPPER]`` followed by ``+``-separated
+    modifiers (:data:`MODIFIERS`): ``oN`` SIFT's first octave N, ``tN`` the global mapper's tracks
+    per view, ``baN`` final bundle adjustment iterations, ``nocrop`` the whole frame,
+    ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation; e.g.
+    ``capture_order+global+o0`` or ``auto+nocrop+consecutive`` -> ColmapConfig."""
     from recon.poses import ColmapConfig
 
-    if name == "auto":
-        return ColmapConfig()
-    matcher, mapper, *rest = name.split("+")
-    octave = {"first_octave": int(rest[0].removeprefix("o"))} if rest else {}
-    return ColmapConfig(matcher=matcher, mapper=mapper, **octave)
+    tokens = name.split("+")
+    fields = {}
+    if tokens[0] == "auto":
+        modifiers = tokens[1:]
+    else:
+        fields.update(matcher=tokens[0], mapper=tokens[1])
+        modifiers = tokens[2:]
+    for token in modifiers:
+        if token in MODIFIERS:
+            key, value = MODIFIERS[token]
+        else:
+            prefix = next((p for p in sorted(MODIFIERS, key=len, reverse=True)
+                           if callable(MODIFIERS[p][1]) and token.startswith(p)), None)
+            if prefix is None:
+                raise ValueError(f"unknown config modifier {token!r} in {name!r}")
+            key, value = MODIFIERS[prefix][0], MODIFIERS[prefix][1](token.removeprefix(prefix))
+        fields[key] = value
+    return ColmapConfig(**fields)
 
 
 def growth(rows: list[dict]) -> list[dict]:

@@ -28,6 +28,11 @@ def test_auto_resolves_by_view_count():
         ColmapConfig(first_octave=2)
     assert colmap_config("capture_order+global+o-1").first_octave == -1
     assert colmap_config("exhaustive+incremental").first_octave is None
+    c = colmap_config("auto+nocrop+consecutive+t300+noretri+ba0")
+    assert (c.matcher, c.crop_to_subject, c.pair_offsets, c.global_tracks_per_view, c.global_retriangulate,
+            c.final_ba_iterations) == ("auto", False, "consecutive", 300, False, 0)
+    with pytest.raises(ValueError, match="modifier"):
+        colmap_config("auto+fast")
 
 
 def test_growth_exponents_are_the_log_log_slopes():
