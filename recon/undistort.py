@@ -28,6 +28,7 @@ from functools import lru_cache
 import numpy as np
 
 from render.camera import Camera, Intrinsics, distort_normalized
+from render.remap import INTERPOLATIONS, remap_image
 
 __all__ = ["pinhole_of", "undistort_maps", "undistort_image", "undistort_view"]
 
@@ -73,11 +74,8 @@ def undistort_image(image: np.ndarray, intrinsics: Intrinsics, interpolation: st
     same shape and dtype; pixels outside the distorted image are 0 (False). An exact copy when
     the intrinsics have no distortion.
     """
-    import cv2  # here, not at import: the stages that load this module start without OpenCV
-
-    flags = {"linear": cv2.INTER_LINEAR, "nearest": cv2.INTER_NEAREST}
-    if interpolation not in flags:
-        raise ValueError(f"interpolation must be one of {sorted(flags)}, got {interpolation!r}")
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"interpolation must be one of {sorted(INTERPOLATIONS)}, got {interpolation!r}")
     a = np.asarray(image)
     k = intrinsics
     if a.ndim not in (2, 3) or a.shape[:2] != (k.height, k.width):
@@ -85,20 +83,9 @@ def undistort_image(image: np.ndarray, intrinsics: Intrinsics, interpolation: st
     if not k.has_distortion:
         return a.copy()
     mx, my, valid = undistort_maps(k)
-    src = a.view(np.uint8) if a.dtype == np.bool_ else a
-    if src.ndim == 3 and src.shape[2] > 4:  # remap interpolates at most 4 channels at once
-        out = np.stack([_remap(src[..., c], mx, my, flags[interpolation]) for c in range(src.shape[2])], axis=-1)
-    else:
-        out = _remap(src, mx, my, flags[interpolation])
+    out = remap_image(a, mx, my, interpolation)
     out[~valid] = 0
-    return out.view(np.bool_) if a.dtype == np.bool_ else out
-
-
-def _remap(src: np.ndarray, mx: np.ndarray, my: np.ndarray, flag: int) -> np.ndarray:
-    import cv2
-
-    out = cv2.remap(np.ascontiguousarray(src), mx, my, flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.reshape(src.shape)  # cv2 drops a trailing channel axis of size 1
+    return out
 
 
 def undistort_view(camera: Camera, rgb: np.ndarray, depth: np.ndarray | None = None,

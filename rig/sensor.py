@@ -30,13 +30,13 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
-import cv2
 import numpy as np
 
 from render.camera import Intrinsics, distort_normalized, undistort_normalized
+from render.remap import INTERPOLATIONS, remap_image
+
 __all__ = ["SensorConfig", "apply_sensor", "sensor_effects", "distort_map", "distortion_maps", "vignetting_gain"]
 
-_INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR}
 #: map value for output pixels whose ray the distortion model cannot invert: far outside the
 #: ideal image, so the remap fills them with the border value 0
 _OUTSIDE = -1.0e4
@@ -151,8 +151,8 @@ def distort_map(image: np.ndarray, intrinsics: Intrinsics, interpolation: str = 
     same shape and dtype; an exact copy when the intrinsics have no distortion. Bilinear weights
     in ``cv2.remap`` are quantized to 1/32 px.
     """
-    if interpolation not in _INTERPOLATION:
-        raise ValueError(f"interpolation must be one of {sorted(_INTERPOLATION)}, got {interpolation!r}")
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"interpolation must be one of {sorted(INTERPOLATIONS)}, got {interpolation!r}")
     a = np.asarray(image)
     k = intrinsics
     if a.ndim not in (2, 3) or a.shape[:2] != (k.height, k.width):
@@ -160,18 +160,7 @@ def distort_map(image: np.ndarray, intrinsics: Intrinsics, interpolation: str = 
     if not k.has_distortion:
         return a.copy()
     mx, my = distortion_maps(k)
-    src = a.view(np.uint8) if a.dtype == np.bool_ else a
-    flag = _INTERPOLATION[interpolation]
-    if src.ndim == 3 and src.shape[2] > 4:  # remap's interpolators handle up to 4 channels
-        out = np.stack([_remap(src[..., c], mx, my, flag) for c in range(src.shape[2])], axis=-1)
-    else:
-        out = _remap(src, mx, my, flag)
-    return out.view(np.bool_) if a.dtype == np.bool_ else out
-
-
-def _remap(src: np.ndarray, mx: np.ndarray, my: np.ndarray, flag: int) -> np.ndarray:
-    out = cv2.remap(np.ascontiguousarray(src), mx, my, flag, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return out.reshape(src.shape)  # cv2 drops a trailing channel axis of size 1
+    return remap_image(a, mx, my, interpolation)
 
 
 # --------------------------------------------------------------------------- vignetting
