@@ -8,11 +8,13 @@ CONFORMANCE := $(VENV)/.conformance-stamp
 SCENE  ?= turntable
 export PYOPENGL_PLATFORM := egl
 
-.PHONY: setup demo test bench repro lock clean
+.PHONY: install setup demo test bench repro lock clean
+
+install: $(STAMP) $(CONFORMANCE)
 
 # the renderers' numba kernels compiled ahead of first use (once per source tree: a marker in the
 # cache folder, keyed by render/'s sources, makes later runs a no-op)
-setup: $(STAMP) $(CONFORMANCE)
+setup: install
 	$(BIN)/python -m pipeline.warm_kernels
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
@@ -31,7 +33,9 @@ $(CONFORMANCE): $(STAMP)
 
 # the demo runs the stages dvc.yaml wires, with params.yaml's values; for the default scene it then
 # records what each stage wrote in dvc.lock (dvc commit), so `dvc status` is up to date afterwards
-demo: setup
+# (the default scene's stages render with the path tracer alone: only its kernels are warmed)
+demo: install
+	$(BIN)/python -m pipeline.warm_kernels --only path
 	$(BIN)/lumigraph run $(SCENE)
 	if [ "$(SCENE)" = "$$(sed -n 's/^scene: *//p' params.yaml)" ]; then $(BIN)/dvc commit -f -q; fi
 

@@ -6,9 +6,14 @@ cache instead of compiling on first use (one to two minutes per integrator famil
 render/'s sources (render/_kernel_cache.py); a marker in it records that this tree's kernels are
 warm, so a second run costs only the digest. Each integrator is warmed by a real render at a
 toy size through the CLI, two at a time (numba compiles on one core per process).
+
+``--only path,direct`` warms just those integrators (`make demo`: the default scene's stages use
+the path tracer alone, so a fresh clone's demo does not wait for bdpt's or volpath's kernels);
+each warmed integrator leaves its own marker (``warm.<integrator>``), the full set the ``warm`` one.
 """
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 import tempfile
@@ -47,15 +52,28 @@ def _render(scene: str, integrator: str, out: Path) -> tuple[str, float, str | N
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Warm the kernels unless the marker says they are; exit 1 naming an integrator whose
-    toy render failed (a render bug: set-up should say so, not hide it)."""
+    """Warm the kernels unless the markers say they are; exit 1 naming an integrator whose
+    toy render failed (a render bug: set-up should say so, not hide it), 2 for an unknown name."""
+    parser = argparse.ArgumentParser(prog="python -m pipeline.warm_kernels", description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default=None, help="comma-separated integrators to warm (default: all)")
+    args = parser.parse_args(argv)
+    known = [i for _, i in WARM_RENDERS]
+    wanted = known if args.only is None else [n.strip() for n in args.only.split(",") if n.strip()]
+    unknown = [n for n in wanted if n not in known]
+    if unknown or not wanted:
+        print(f"warm_kernels: --only: unknown integrator {', '.join(unknown) or '(none given)'} "
+              f"(known: {', '.join(known)})", file=sys.stderr)
+        return 2
     folder = kernel_cache_dir()
-    if (folder / MARKER).is_file():
+    todo = [] if (folder / MARKER).is_file() else [(sc, i) for sc, i in WARM_RENDERS
+                                                    if i in wanted and not (folder / f"{MARKER}.{i}").is_file()]
+    if not todo:
         print(f"warm_kernels: kernels already compiled ({folder})")
         return 0
-    print(f"warm_kernels: compiling the renderers' kernels into {folder} (once per source tree)", flush=True)
+    print(f"warm_kernels: compiling {', '.join(i for _, i in todo)} kernels into {folder} (once per source tree)",
+          flush=True)
     with tempfile.TemporaryDirectory(prefix="lumigraph-warm-") as tmp, ThreadPoolExecutor(2) as pool:
-        results = list(pool.map(lambda si: _render(si[0], si[1], Path(tmp)), WARM_RENDERS))
+        results = list(pool.map(lambda si: _render(si[0], si[1], Path(tmp)), todo))
     failed = [(name, err) for name, _, err in results if err is not None]
     for name, seconds, err in results:
         print(f"  {name:<17} {seconds:6.1f} s" + (f"  FAILED: {err}" if err else ""))
@@ -64,7 +82,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{', '.join(n for n, _ in failed)}", file=sys.stderr)
         return 1
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / MARKER).write_text("".join(f"{n} {s:.1f}\n" for n, s, _ in results))
+    for name, seconds, _ in results:
+        (folder / f"{MARKER}.{name}").write_text(f"{name} {seconds:.1f}\n")
+    if all((folder / f"{MARKER}.{i}").is_file() for i in known):
+        (folder / MARKER).write_text("".join((folder / f"{MARKER}.{i}").read_text() for i in known))
     return 0
 
 

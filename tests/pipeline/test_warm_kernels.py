@@ -30,3 +30,23 @@ def test_a_warm_tree_is_a_no_op_through_the_process(tmp_path):
                        text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "already compiled" in r.stdout and str(folder) in r.stdout
+
+
+def test_only_a_subset_and_its_markers_through_the_process(tmp_path):
+    """``--only path`` with path's own marker present is a no-op naming nothing to compile; an
+    unknown name exits 2 with one line naming it; without ``--only`` the missing rest is what
+    would be compiled (checked by a marker for every integrator: then a no-op)."""
+    folder = tmp_path / sources_digest()
+    folder.mkdir()
+    (folder / f"{MARKER}.path").write_text("path 1.0\n")
+    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path)}
+    run = lambda *a: subprocess.run([sys.executable, "-m", "pipeline.warm_kernels", *a], cwd=REPO, env=env,
+                                    capture_output=True, text=True, timeout=60)
+    r = run("--only", "path")
+    assert r.returncode == 0 and "already compiled" in r.stdout, r.stdout + r.stderr
+    r = run("--only", "path,nope")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nope" in r.stderr and not r.stdout
+    for _, i in WARM_RENDERS:
+        (folder / f"{MARKER}.{i}").write_text(f"{i} 1.0\n")
+    r = run()
+    assert r.returncode == 0 and "already compiled" in r.stdout, r.stdout + r.stderr
