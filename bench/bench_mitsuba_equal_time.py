@@ -17,7 +17,8 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   independent and multijitter samplers; ``efficiency`` = 1 / (MSE x seconds).
 * ``equal_time``: for budgets of 5 s and 30 s of whole-process wall time (times the machine's
   inflation: the median ``lumigraph --help`` time over HELP_QUIET_S; or ``--budgets A,B``), each contestant's spp
-  chosen from a two-point calibration of its own whole-process time (t = a + b spp), then run
+  chosen from a two-point calibration of its own whole-process time (t = a + b spp; each point the
+  faster of two runs), then run
   once and timed: ``lumigraph reference cornell --views scene --size 128 128 --spp N`` (a fresh
   process: imports, scene, BVH, kernels from numba's cache, EXR writing) against a fresh Python
   process that imports mitsuba, loads the same scene and renders (``llvm_ad_rgb`` where libLLVM
@@ -26,8 +27,14 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   scene (camera rays, then cosine-distributed bounce rays from the first hits) against our
   rays/s and paths/s at 256 spp in the same process.
 
+Ours runs under both Sobol samplers at equal time: ``sobol`` (R interleaved independent replicates,
+an unbiased variance image) and ``sobol-blocks`` (one sequence per pixel, a conservative variance
+image: render.sobol), each ratio against Mitsuba's samplers reported.
+
 Run: ``.venv/bin/python -m bench.bench_mitsuba_equal_time`` (``--quick``: a shorter reference and
-a 5 s budget only).
+a 5 s budget only; ``--reference FILE.npz``: reuse a saved reference (arrays mean, var; the run
+saves its own as bench/results/mitsuba_equal_time_reference.npz); ``--skip-variants``: no
+spp-for-spp study).
 """
 from __future__ import annotations
 
@@ -119,14 +126,14 @@ def _run_mitsuba(scene_json: Path, sampler: str, spp: int, seed: int, tmp: Path)
     return np.load(out), wall
 
 
-def _run_ours(spp: int, seed: int, tmp: Path, sampler: str = "sobol") -> tuple[np.ndarray, float, dict]:
+def _run_ours(spp: int, seed: int, tmp: Path, sampler: str = "sobol", max_depth: int = 8) -> tuple[np.ndarray, float, dict]:
     """``lumigraph reference`` in a fresh process: (image, whole-process wall seconds, manifest metrics)."""
     from render.image_io import read_exr
 
-    out = tmp / f"ours_{sampler}_{spp}_{seed}"
+    out = tmp / f"ours_{sampler}_{spp}_{seed}_{max_depth}"
     cmd = [sys.executable, "-m", "pipeline", "reference", "cornell", "--views", "scene", "--size", str(SIZE), str(SIZE),
            "--spp", str(int(spp)), "--seed", str(int(seed)), "--sampler", sampler, "--out", str(out), "--quiet",
-           "--overwrite", "--workers", "0"]
+           "--overwrite", "--workers", "0", "--max-depth", str(int(max_depth))]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True)
     wall = time.perf_counter() - t0
@@ -171,6 +178,7 @@ def _variants(scene, cam, ps, ref_mean, noise, spp: int) -> dict:
         "rr_depth 5, max_depth 64 (Mitsuba's policy)": {"rr_depth": 5, "max_depth": 64},
         "balance heuristic": {"heuristic": "balance"},
         "independent sampler": {"sampler": "independent"},
+        "sobol-blocks sampler (one sequence per pixel)": {"sampler": "sobol-blocks"},
     }
     out = {}
     for name, kw in variants.items():
@@ -231,15 +239,24 @@ def main(argv: list[str]) -> None:
         budgets = [float(x) for x in argv[argv.index("--budgets") + 1].split(",")]
     scene, cam = _cornell()
     load0 = os.getloadavg()
-    ps, ref, ref_s = _reference(scene, cam, ref_spp)
-    ref_mean = ref.mean.astype(np.float64)
-    noise = float(ref.variance.astype(np.float64).mean())
+    if "--reference" in argv:  # a saved reference (the same REF_SPP, REF_DEPTH, seed and sampler)
+        from render.integrators import prepare
+
+        ps, ref_s = prepare(scene), None
+        with np.load(argv[argv.index("--reference") + 1]) as z:
+            ref_mean, ref_var = z["mean"].astype(np.float64), z["var"].astype(np.float64)
+    else:
+        ps, ref, ref_s = _reference(scene, cam, ref_spp)
+        ref_mean, ref_var = ref.mean.astype(np.float64), ref.variance.astype(np.float64)
+        np.savez(ROOT / "bench" / "results" / "mitsuba_equal_time_reference.npz", mean=ref_mean, var=ref_var)
+    noise = float(ref_var.mean())
     figures = {"scene": "cornell", "size": [SIZE, SIZE],
-               "reference": {"spp": ref_spp, "max_depth": REF_DEPTH, "sampler": "sobol", "seconds": round(ref_s, 2),
+               "reference": {"spp": ref_spp, "max_depth": REF_DEPTH, "sampler": "sobol",
+                             "seconds": None if ref_s is None else round(ref_s, 2), "reused": ref_s is None,
                              "noise_mse": noise, "image_mean": ref_mean.reshape(-1, 3).mean(0).tolist(),
-                             "image_mean_se": (np.sqrt(ref.variance.reshape(-1, 3).astype(np.float64).sum(0))
-                                               / (SIZE * SIZE)).tolist()}}
-    figures["variants_ours"] = _variants(scene, cam, ps, ref_mean, noise, SPP_VARIANTS)
+                             "image_mean_se": (np.sqrt(ref_var.reshape(-1, 3).sum(0)) / (SIZE * SIZE)).tolist()}}
+    if "--skip-variants" not in argv:
+        figures["variants_ours"] = _variants(scene, cam, ps, ref_mean, noise, SPP_VARIANTS)
     from bench.bench_media_mitsuba import _mitsuba
 
     mi, variant = _mitsuba()
@@ -249,11 +266,19 @@ def main(argv: list[str]) -> None:
                  "inflation": inflation, "mitsuba_variant": variant}
         # ours: whole-command calibration (the first run also warms numba's cache and the file cache)
         _run_ours(8, 1, tmp)
-        calib_ours = [(n, _run_ours(n, 1, tmp)[1]) for n in (16, 256)]
+        # each calibration point is the faster of two runs (a load spike in one run would
+        # otherwise starve that contestant at every budget: measured, a 7.3 s Mitsuba start-up
+        # gave it 1 spp at 5 s)
+        calib_ours = [(n, min(_run_ours(n, 1, tmp)[1] for _ in range(2))) for n in (16, 256)]
         equal["calibration_ours"] = calib_ours
+        # Mitsuba's path has no depth limit: ours at max_depth 64 too (roulette ends the paths),
+        # which removes the depth-8 cut-off's bias from its error, calibrated on its own
+        calib_deep = [(n, min(_run_ours(n, 1, tmp, "sobol-blocks", 64)[1] for _ in range(2))) for n in (16, 256)]
+        equal["calibration_ours_blocks_depth64"] = calib_deep
         if mi is not None:
             json_unlimited = _mitsuba_scene_json(scene, cam, tmp, None)
             json_depth8 = _mitsuba_scene_json(scene, cam, tmp, 8)
+        if mi is not None and "--skip-variants" not in argv:
             mits = {}
             for sampler in ("independent", "multijitter"):
                 img, wall = _run_mitsuba(json_unlimited, sampler, SPP_VARIANTS, 7, tmp)
@@ -264,23 +289,28 @@ def main(argv: list[str]) -> None:
                                                                         "whole_process_s": round(wall, 3),
                                                                         "image_mean": img.reshape(-1, 3).astype(np.float64).mean(0).tolist()}
             figures["variants_mitsuba"] = {"spp": SPP_VARIANTS, **mits}
-            calib_mi = {s: [(n, _run_mitsuba(json_unlimited, s, n, 1, tmp)[1]) for n in (16, 512)]
+        if mi is not None:
+            calib_mi = {s: [(n, min(_run_mitsuba(json_unlimited, s, n, 1, tmp)[1] for _ in range(2))) for n in (16, 512)]
                         for s in ("independent", "multijitter")}
             equal["calibration_mitsuba"] = calib_mi
         rows = []
         for budget in budgets:
             row = {"budget_s": budget}
-            n = _spp_for(budget, calib_ours)
-            img, wall, metrics = _run_ours(n, 2, tmp)
-            row["ours"] = {"spp": n, "whole_process_s": round(wall, 3), **_rmse(img, ref_mean, noise),
-                           "paths_per_s": metrics.get("paths_per_s"), "rays_per_s": metrics.get("rays_per_s")}
+            n = _spp_for(budget, calib_ours)  # the two Sobol samplers cost the same per sample
+            for name, sampler, depth, spp in (("ours", "sobol", 8, n), ("ours_blocks", "sobol-blocks", 8, n),
+                                              ("ours_blocks_depth64", "sobol-blocks", 64, _spp_for(budget, calib_deep))):
+                img, wall, metrics = _run_ours(spp, 2, tmp, sampler, depth)
+                row[name] = {"sampler": sampler, "max_depth": depth, "spp": spp, "whole_process_s": round(wall, 3),
+                             **_rmse(img, ref_mean, noise),
+                             "paths_per_s": metrics.get("paths_per_s"), "rays_per_s": metrics.get("rays_per_s")}
             if mi is not None:
                 for sampler in ("independent", "multijitter"):
                     m = _spp_for(budget, calib_mi[sampler])
                     img, wall = _run_mitsuba(json_unlimited, sampler, m, 2, tmp)
                     row[f"mitsuba_{sampler}"] = {"spp": m, "whole_process_s": round(wall, 3), **_rmse(img, ref_mean, noise)}
-                    row[f"ratio_ours_to_mitsuba_{sampler}"] = (row["ours"]["rmse_truth_est"]
-                                                               / max(row[f"mitsuba_{sampler}"]["rmse_truth_est"], 1e-30))
+                    for name in ("ours", "ours_blocks", "ours_blocks_depth64"):
+                        row[f"ratio_{name}_to_mitsuba_{sampler}"] = (row[name]["rmse_truth_est"]
+                                                                     / max(row[f"mitsuba_{sampler}"]["rmse_truth_est"], 1e-30))
             rows.append(row)
         equal["rows"] = rows
         figures["equal_time"] = equal
