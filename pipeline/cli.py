@@ -83,7 +83,9 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
               sampler: Optional[str] = typer.Option(None, help="path/direct random numbers: sobol (Owen-scrambled "
-                                                               "Sobol, the default where the integrator reads it) | independent"),
+                                                               "Sobol, the default where the integrator reads it) | "
+                                                               "sobol-blocks (one sequence per pixel: lower error, "
+                                                               "a conservative variance image) | independent"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
               scheduler: Optional[str] = SCHEDULER,
