@@ -154,7 +154,7 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                 row = {"views": views, "config": cfg_name, "matcher": m.get("matcher"), "mapper": m.get("mapper"),
                        "pairs": m.get("pairs"), "extract_s": m.get("extract_time_s"), "match_s": m.get("match_time_s"),
                        "map_s": m.get("map_time_s"), "refine_s": m.get("refine_time_s"),
-                       "first_octave": m.get("first_octave"), "crop_box": m.get("crop_box"),
+                       "first_octave": m.get("first_octave"), "crop_box": _metrics_file(folder / f"poses_{cfg_name}").get("crop_box"),
                        "poses_wall_s": round(time.perf_counter() - t0, 1),
                        "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
                        "rotation_error_deg_mean": m.get("rotation_error_deg_mean"),
@@ -176,6 +176,12 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
 MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "ba": ("final_ba_iterations", int),
              "nocrop": ("crop_to_subject", False), "consecutive": ("pair_offsets", "consecutive"),
              "noretri": ("global_retriangulate", False)}
+
+
+def _metrics_file(poses: Path) -> dict:
+    """A poses folder's metrics.json (lists included, which the manifest's metrics drop), or {}."""
+    path = poses / "metrics.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
 
 
 def colmap_config(name: str):

@@ -7,7 +7,9 @@ ring is one revolution, its last frame next to its first. The pairs are
   frames (``1 .. window``, a sequential matcher's overlap), or doubling steps ``1, 2, 4, ..`` up
   to ``window`` (:func:`doubling_offsets`: a few short baselines for matching, a few long ones for
   triangulation, ``log2(window) + 1`` pairs per frame instead of ``window``), wrapping round a
-  closed sequence (loop closure: frame n-1 meets frames 0, 1, ...);
+  closed sequence (loop closure: frame n-1 meets frames 0, 1, ...); on a closed sequence no step
+  exceeds a quarter of it (:data:`MAX_RING_FRACTION`: on a ring of 8, step 4 pairs each view with
+  the opposite one, and the global mapper folded the small test capture on such pairs);
 * **between sequences**: every two sequences are linked at the same phase of their sweep. Frame
   ``a`` of the shorter sequence (``n_s`` frames) meets frames ``round(a n_l / n_s) +- link_window``
   of the longer one (``n_l``): on a turntable, the views shot at the same turntable angle from
@@ -47,6 +49,10 @@ class ViewOrder:
             raise ValueError(f"view {self.name!r}: frame {self.frame} outside 0..{self.frames - 1}")
 
 
+#: the longest step within a closed sequence, as a fraction of its frames (a quarter turn)
+MAX_RING_FRACTION = 0.25
+
+
 def doubling_offsets(window: int) -> tuple[int, ...]:
     """``(1, 2, 4, ..)``: the powers of two up to ``window`` (>= 1); 12 -> (1, 2, 4, 8)."""
     if window < 1:
@@ -55,8 +61,12 @@ def doubling_offsets(window: int) -> tuple[int, ...]:
 
 
 def _within(members: list[ViewOrder], offsets: Sequence[int]) -> set[tuple[str, str]]:
-    """Each frame with the frames ``offsets`` ahead, wrapping when the sequence is closed."""
+    """Each frame with the frames ``offsets`` ahead, wrapping when the sequence is closed (steps
+    beyond MAX_RING_FRACTION of it dropped, the first step always kept)."""
     n = len(members)
+    if members[0].closed:
+        longest = max(int(MAX_RING_FRACTION * members[0].frames), min(offsets))
+        offsets = [step for step in offsets if step <= longest]
     pairs = set()
     for i in range(n):
         for step in offsets:

@@ -49,9 +49,11 @@ def test_pairs_follow_the_rings_with_loop_closure_and_link_the_held_out_ring():
         for ring in (ring0, ring1):
             assert {p for p in pairs if test[k] in p and p & set(ring)} == \
                 {frozenset((test[k], ring[(3 * k + d) % 12])) for d in (-1, 0, 1)}
-    # closed form: within 12*2 per train ring, the 4-ring's 6 (every pair), links 12*3 + 2 * 4*3
-    assert len(pairs) == 2 * 24 + 6 + 36 + 24 == 114
-    assert len(capture_order_pairs(views, window=2, link_window=1)) == 114  # no duplicates
+    # the 4-ring: steps up to a quarter turn (1 frame), not its opposite views
+    assert frozenset((test[0], test[1])) in pairs and frozenset((test[0], test[2])) not in pairs
+    # closed form: within 12*2 per train ring, the 4-ring's 4, links 12*3 + 2 * 4*3
+    assert len(pairs) == 2 * 24 + 4 + 36 + 24 == 112
+    assert len(capture_order_pairs(views, window=2, link_window=1)) == 112  # no duplicates
 
 
 def test_only_the_shooting_order_decides_not_names_or_list_order():
@@ -86,8 +88,8 @@ def test_doubling_offsets_give_short_and_long_baselines_in_closed_form():
     """Steps 1, 2, 4, 8 within each ring of a 1000-view layout shrunk to rings of 32 + 32 + 32 and
     a held-out 8: each train frame meets the frames 1, 2, 4 and 8 ahead (wrapping: loop closure)
     and nothing between; the rings are linked at the same phase whatever the steps; pairs follow
-    ``N_ring * len(offsets)`` per ring (the 8-ring: steps 1 and 2 give 16 pairs, step 4 pairs
-    each frame with its opposite, 4 pairs, step 8 is the frame itself)."""
+    ``N_ring * len(offsets)`` per ring; the 8-ring keeps steps up to a quarter turn, 1 and 2 (16
+    pairs; step 4 would pair each view with the opposite one)."""
     from recon.poses.pairing import doubling_offsets
 
     assert doubling_offsets(12) == (1, 2, 4, 8) and doubling_offsets(1) == (1,) and doubling_offsets(16)[-1] == 16
@@ -104,8 +106,9 @@ def test_doubling_offsets_give_short_and_long_baselines_in_closed_form():
     # held-out frame k meets train frames 4k-1..4k+1 of each ring (32 / 8 = 4)
     assert {p for p in pairs if "test_003" in p and p & set(ring)} == \
         {frozenset(("test_003", ring[12 + d])) for d in (-1, 0, 1)}
-    within = 3 * 32 * 4 + (8 + 8 + 4)
+    assert frozenset(("test_000", "test_002")) in pairs and frozenset(("test_000", "test_004")) not in pairs
+    within = 3 * 32 * 4 + (8 + 8)
     links = 3 * 32 * 3 + 3 * 8 * 3
-    assert len(pairs) == within + links == 764
+    assert len(pairs) == within + links == 760
     with pytest.raises(ValueError, match="offsets"):
         capture_order_pairs(views, offsets=(0, 1))

@@ -8,7 +8,7 @@ import pytest
 
 from bench.bench_poses import LAYOUTS, colmap_config, growth
 from recon.poses import ColmapConfig, ReconstructionError
-from recon.poses.colmap import resolve_first_octave, resolve_mapper, resolve_matcher
+from recon.poses.colmap import resolve_final_ba_iterations, resolve_first_octave, resolve_mapper, resolve_matcher
 from recon.poses.colmap_process import estimate_colmap_stoppable
 
 
@@ -22,6 +22,10 @@ def test_auto_resolves_by_view_count():
     assert table == {56: ("exhaustive", "incremental", -1), 224: ("capture_order", "global", -1),
                      1000: ("capture_order", "global", -1)}
     assert resolve_matcher(cfg, 224, False) == "sequential"
+    # the global mapper skips its retriangulation and gets 10 final iterations; the incremental 100
+    assert [resolve_final_ba_iterations(cfg, resolve_mapper(cfg, v)) for v in LAYOUTS] == [100, 10, 10]
+    assert not cfg.global_retriangulate and cfg.crop_to_subject and cfg.pair_offsets == "doubling"
+    assert resolve_final_ba_iterations(ColmapConfig(final_ba_iterations=0), "global") == 0
     assert resolve_first_octave(ColmapConfig(first_octave=-1), 1000) == -1
     assert resolve_first_octave(ColmapConfig(first_octave=0), 56) == 0
     with pytest.raises(ValueError, match="first_octave"):
