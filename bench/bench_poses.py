@@ -50,13 +50,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--views", default="56,224,1000", help="scale benchmark view counts ('' runs the study)")
     ap.add_argument("--configs", default="auto", help="scale benchmark: auto or MATCHER+MAPPER, comma-separated")
     ap.add_argument("--keep", type=Path, default=None, help="scale benchmark: keep the captures under this folder")
+    ap.add_argument("--add", action="store_true", help="scale benchmark: add this run's rows to the saved ones "
+                                                       "(same code, e.g. 224 views after 56) instead of setting "
+                                                       "them aside as earlier rows")
     ap.add_argument("--lens", default="", help="lens benchmark: comma-separated calibrations (self, charuco, "
                                                "self:MODEL) on scenes/real_lens.yaml; runs instead of the others")
     a = ap.parse_args(argv)
     if a.lens:
         return lens_benchmark(a.lens.split(","), a.keep)
     if a.views:
-        return scale_benchmark([int(v) for v in a.views.split(",")], a.configs.split(","), a.keep)
+        return scale_benchmark([int(v) for v in a.views.split(",")], a.configs.split(","), a.keep, a.add)
     from pipeline.stages.poses import load_capture
     from recon.poses.study import STUDY_COLUMNS, pose_study
 
@@ -115,7 +118,7 @@ def scaled_turntable(views: int) -> dict:
     return copy.deepcopy(spec)
 
 
-def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | None) -> None:
+def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | None, add: bool = False) -> None:
     import yaml
 
     from pipeline.artifacts import BadInput
@@ -123,12 +126,18 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
     from pipeline.stages.poses import PosesConfig, run_poses
 
     rows = []
-    # rows of an earlier run (other code, other load) are kept apart, never mixed into ``growth``
+    # rows of an earlier run (other code, other load) are kept apart, never mixed into ``growth``,
+    # unless ``add``: then they stay rows (a run continued, e.g. 224 views after 56)
     previous = RESULTS_DIR / "bench_poses_scale.json"
     earlier = []
     if previous.is_file():
         old = json.loads(previous.read_text())
-        earlier = old.get("earlier_rows", []) + [{**r, "run_time": old.get("time")} for r in old.get("rows", [])]
+        earlier = old.get("earlier_rows", [])
+        kept = [{**r, "run_time": r.get("run_time", old.get("time"))} for r in old.get("rows", [])]
+        if add:
+            rows = kept
+        else:
+            earlier += kept
     with tempfile.TemporaryDirectory(prefix="bench-poses-scale-") as tmp:
         root = keep or Path(tmp)
         for views in view_counts:

@@ -25,7 +25,8 @@ used), projection_error_px_{max,view_max_mean,mean} and lens_projection_error_px
 whole camera and the lens alone against the truth, :func:`recon.poses.projection_error`),
 estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
 options, the matcher and mapper that ran, pairs matched and {extract,match,map,refine}_time_s
-(refine: the part of map after the mapper), first_octave (SIFT's, as resolved), the
+(refine: the part of map after the mapper), first_octave (SIFT's, as resolved), crop_box
+(the input pixels SIFT saw, ``[x0, y0, x1, y1]``, or null for the whole frame), the
 calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
 constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre
 the features reach; the ``*_covered`` projection maxima are within it), rational_refit_px and,
