@@ -112,6 +112,9 @@ class ColmapConfig:
         involved) instead of the whole frame; the intrinsics follow the crop (principal point
         shifted, or with self-calibration a box centred on the image so the mapper's centred
         principal point stays right). Same features on the subject, fewer pixels to filter.
+        None (auto): with known intrinsics only; self-calibration keeps the whole frame, as its
+        lens figures were measured (a centred box on ``scenes/real_lens.yaml`` keeps 68% of the
+        frame; not measured).
     seed: COLMAP's RANSAC seeds (two-view verification, mapper, triangulation) and its global PRNG.
     num_threads: threads of feature extraction and matching (-1 = all cores); the result does not
         depend on it. COLMAP numbers images in the order its extraction threads finish, and the
@@ -136,7 +139,7 @@ class ColmapConfig:
     global_retriangulate: bool = False
     camera_model: str = "auto"
     final_ba_iterations: int | None = None
-    crop_to_subject: bool = True
+    crop_to_subject: bool | None = None
     seed: int = 0
     num_threads: int = -1
 
@@ -468,7 +471,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     t0 = time.perf_counter()
     first = next(iter(images.values()))
     width, height = _image_size(Path(first))
-    box = subject_box(list(images.values()), centred=not config.known_intrinsics) if config.crop_to_subject else None
+    crop = config.known_intrinsics if config.crop_to_subject is None else config.crop_to_subject
+    box = subject_box(list(images.values()), centred=not config.known_intrinsics) if crop else None
     x0, y0, x1, y1 = box or (0, 0, width, height)
     names = _prepare_images(images, config.image_scale, image_dir, box)
     sw, sh = _image_size(image_dir / names[0])

@@ -24,7 +24,7 @@ def test_auto_resolves_by_view_count():
     assert resolve_matcher(cfg, 224, False) == "sequential"
     # the global mapper skips its retriangulation and gets 10 final iterations; the incremental 100
     assert [resolve_final_ba_iterations(cfg, resolve_mapper(cfg, v)) for v in LAYOUTS] == [100, 10, 10]
-    assert not cfg.global_retriangulate and cfg.crop_to_subject and cfg.pair_offsets == "doubling"
+    assert not cfg.global_retriangulate and cfg.crop_to_subject is None and cfg.pair_offsets == "doubling"
     assert resolve_final_ba_iterations(ColmapConfig(final_ba_iterations=0), "global") == 0
     assert resolve_first_octave(ColmapConfig(first_octave=-1), 1000) == -1
     assert resolve_first_octave(ColmapConfig(first_octave=0), 56) == 0
