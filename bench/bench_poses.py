@@ -25,7 +25,9 @@ stage (COLMAP, known intrinsics) with each of ``--configs`` (``auto`` = the stag
 match / map seconds, pairs, registered views and rotation error, with the 1-minute load
 average before and after (the machine is shared: times are only comparable within a run), and
 ``growth``: seconds per view and the exponent of time against views between consecutive counts
-(1 = linear).
+(1 = linear). The rows of the previous run are set aside as ``earlier_rows`` (other code, other
+load), or with ``--add`` kept beside this run's (a run continued: ``--views 224 --add`` after
+``--views 56``).
 """
 from __future__ import annotations
 
