@@ -28,10 +28,22 @@ PSNR / SSIM, LDR- and HDR-ꟻLIP, linear PSNR; whole image and the subject's mas
 all-black image's scores, with the slab set's bytes, the VQ figures the stage wrote, and frames/s of
 one held-out view at the capture's size from the memory-mapped set. Writes
 bench/results/slab_capture_resolution.json (machine, load averages) and a side-by-side crop of the
-board (reference | each configuration) as slab_capture_resolution_crop.png.
+board (reference | each configuration) as slab_capture_resolution_crop.png. ``--built LABEL=DIR``
+scores stage folders already built instead; ``--merge`` keeps the rows already in the JSON.
+
+Partial slabs (issue 15's ablations at a fraction of the cost): ``.venv/bin/python -m bench.bench_slab
+--partial CAPTURE_DIR [--st-per-pixel 0.5,1.0] [--uv-res 8]`` builds, per held-out view, only the
+uv cells that view's pixels read (every slab it looks through, restricted to a sub-quad of whole
+uv cells: the same sample positions, so the same render as from the whole set), direct with the
+rig's rasterizer (or, with ``--poses``, rebinned from the train views on those cameras, as
+``lumigraph slab --method rebin``), float16 like the stage, and scores the depth-mode render against the capture's
+view at the capture's size (display PSNR / SSIM, linear PSNR; whole image and subject; no ꟻLIP),
+with the CPU time of one frame (1 thread). A view reads ~2 x 2 uv cells of one or two slabs: 8
+renders instead of the whole set's 288. Writes bench/results/slab_partial.json.
 """
 from __future__ import annotations
 
+import json
 import os
 import statistics
 import tempfile
@@ -175,7 +187,8 @@ def _scores(capture: Path, folder: Path, views: list[str]) -> tuple[dict, dict]:
     return mean(rows), mean(black)
 
 
-def capture_resolution(capture: Path, poses: Path | None, work: Path, built: dict[str, Path] | None = None) -> None:
+def capture_resolution(capture: Path, poses: Path | None, work: Path, built: dict[str, Path] | None = None,
+                       merge: bool = False) -> None:
     """The capture-resolution rows (module docstring). ``built``: row label -> a slab stage folder
     already built by the same command (its GNU time log, ``-v`` or ``-f "%e %M"``, at
     ``<folder>.time`` when there is one; else the manifest's wall time and no peak memory), scored
@@ -227,12 +240,141 @@ def capture_resolution(capture: Path, poses: Path | None, work: Path, built: dic
         rows[name] = row
         loads[f"after_{name}"] = [round(x, 2) for x in os.getloadavg()]
         crops.append(read_exr(out / "renders" / f"{views[0]}.exr")[crop])
+    previous = RESULTS_DIR / "slab_capture_resolution.json"
+    if merge and previous.is_file():  # earlier rows kept (their own load averages beside them)
+        before = json.loads(previous.read_text())
+        rows = {**{k: v for k, v in before.get("rows", {}).items() if k not in rows}, **rows}
+        loads = {**{k: v for k, v in before.get("loadavg_1_5_15", {}).items() if k not in loads}, **loads}
     write_preview(RESULTS_DIR / "slab_capture_resolution_crop.png", np.concatenate(crops, axis=1))
     write_result("slab_capture_resolution", {
         "capture": str(capture), "size": [w, h], "views": views, "reference": "the capture's held-out views",
         "mode": "depth", "loadavg_1_5_15": loads, "black_image": black, "rows": rows,
         "crop": {"view": views[0], "rows": [crop[0].start, crop[0].stop], "cols": [crop[1].start, crop[1].stop],
                  "panels": ["reference", *rows]}})
+
+
+
+def _sub_slab_geometry(g, iu0: int, iu1: int, iv0: int, iv1: int):
+    """Slab ``g`` restricted to uv cells [iu0, iu1] x [iv0, iv1] (whole cells: the samples sit
+    where they sit in ``g``)."""
+    from render.lightfield import SlabGeometry
+
+    nu, nv, ns, nt = g.shape
+    c = g.uv_corners
+    eu, ev = c[1] - c[0], c[3] - c[0]
+    a0, a1, b0, b1 = iu0 / nu, (iu1 + 1) / nu, iv0 / nv, (iv1 + 1) / nv
+    uv = [c[0] + a0 * eu + b0 * ev, c[0] + a1 * eu + b0 * ev, c[0] + a1 * eu + b1 * ev, c[0] + a0 * eu + b1 * ev]
+    return SlabGeometry(uv, g.st_corners, (iu1 - iu0 + 1, iv1 - iv0 + 1, ns, nt), g.name)
+
+
+def partial_geometries(geoms, cam) -> list:
+    """The slabs ``cam``'s pixels read, each restricted to the sub-quad of the uv cells its pixels'
+    bilinear uv taps touch (:func:`_sub_slab_geometry`)."""
+    import numpy as np
+
+    from render.lightfield import slab_coordinates
+
+    o, d = cam.pixel_rays()
+    hits = [slab_coordinates(g, o, d) for g in geoms]
+    best = np.full(len(o), -1)
+    score = np.zeros(len(o))
+    for k, h in enumerate(hits):
+        better = h.valid & (h.cos > score)
+        best[better], score[better] = k, h.cos[better]
+    subs = []
+    for k, g in enumerate(geoms):
+        sel = best == k
+        if not sel.any():
+            continue
+        nu, nv = g.shape[:2]
+        cu = np.clip(hits[k].coords[sel, 0] * nu - 0.5, 0, nu - 1)
+        cv = np.clip(hits[k].coords[sel, 1] * nv - 0.5, 0, nv - 1)
+        subs.append(_sub_slab_geometry(g, int(cu.min()), min(nu - 1, int(cu.max()) + 1),
+                                       int(cv.min()), min(nv - 1, int(cv.max()) + 1)))
+    return subs
+
+
+def _direct_partial(subs, render) -> list:
+    """float16 slabs of geometries ``subs`` acquired with ``render(camera) -> frame`` (the rig's rasterizer)."""
+    import numpy as np
+
+    from render.lightfield import LightSlab, sheared_camera
+
+    slabs = []
+    for sub in subs:
+        rad = np.zeros(sub.array_shape, np.float16)
+        depth = np.zeros(sub.array_shape[:4], np.float16)
+        for j in range(sub.shape[1]):
+            for i in range(sub.shape[0]):
+                frame = render(sheared_camera(sub, (i + 0.5) / sub.shape[0], (j + 0.5) / sub.shape[1]))
+                rad[j, i], depth[j, i] = frame.rgb, frame.depth
+        slabs.append(LightSlab(sub, rad, depth))
+    return slabs
+
+
+def partial(capture: Path, st_per_pixel: list[float], uv_res: int, poses: Path | None = None) -> None:
+    """The ``--partial`` rows (module docstring); rebinned from the train views on ``poses``'
+    cameras (as ``lumigraph slab --method rebin --poses``) when given, else direct."""
+    import numpy as np
+
+    from pipeline.renderers import RasterPool
+    from pipeline.stages.slab import (SlabStageConfig, _background, _cameras, _content_points, _layout, _scene_file,
+                                      load_views)
+    from pipeline.stages.validate import subject_mask
+    from recon.slab import LayoutConfig, RebinConfig, content_bounds, rebin_slabs
+    from render.image_io import read_exr
+    from render.metrics import score_images
+    from rig.build import load_scene
+    from rig.capture import plan_capture
+
+    cams, splits = _cameras(poses or capture)
+    train = [c for c, s in zip(cams, splits) if s == "train"]
+    test = [c for c, s in zip(cams, splits) if s == "test"]
+    config = SlabStageConfig()
+    views = load_views(capture, train)
+    bounds = content_bounds(_content_points(views, config.min_radiance))
+    rig = load_scene(_scene_file(capture) or json.loads((capture / "manifest.json").read_text())["params"]["scene"])
+    if poses is None and plan_capture(rig).renderer != "raster":
+        raise SystemExit("--partial acquires with the rasterizer: this capture's scene needs the path tracer")
+    pool = RasterPool(rig.scene)
+    background = _background(views)
+    method = "rebin" if poses else "direct"
+    loads = {"start": [round(x, 2) for x in os.getloadavg()]}
+    rows = {}
+    for spp in st_per_pixel:
+        layout = LayoutConfig(uv_res=uv_res, st_per_pixel=spp)
+        geoms = _layout(SlabStageConfig(layout=layout), bounds, train, np.asarray(rig.scene.up, np.float64))
+        per_view = {}
+        for cam in test:
+            ref = read_exr(capture / "linear" / f"{cam.name}.exr")
+            subs = partial_geometries(geoms, cam)
+            t0 = time.perf_counter()
+            if poses is None:
+                slabs = _direct_partial(subs, pool.render)
+            else:
+                with tempfile.TemporaryDirectory(prefix="bench_slab_rebin_") as tmp:
+                    built, _ = rebin_slabs(subs, views, tmp, RebinConfig(), background, dtype=np.float16)
+                    slabs = [type(s)(s.geometry, np.array(s.radiance), np.array(s.depth)) for s in built]
+            build_s = time.perf_counter() - t0
+            render_pinhole(slabs, cam, "depth", threads=1)  # compiled on first use
+            c0 = time.process_time()
+            img = render_pinhole(slabs, cam, "depth", background=background, threads=1)
+            cpu = time.process_time() - c0
+            per_view[cam.name] = {**score_images(img, ref, subject_mask(capture, cam.name, ref.shape), with_flip=False),
+                                  "uv_cells": int(sum(g.shape[0] * g.shape[1] for g in subs)),
+                                  "build_s": round(build_s, 2), "frame_cpu_ms_1_thread": round(cpu * 1e3, 1)}
+        keys = next(iter(per_view.values())).keys()
+        rows[f"{method}_st_per_pixel_{spp:g}_uv_{uv_res}"] = {
+            "mean": {k: round(float(np.mean([v[k] for v in per_view.values()])), 4) for k in keys},
+            "st_counts": {g.name: list(g.shape[2:]) for g in geoms}, "per_view": per_view}
+        loads[f"after_{method}_st_per_pixel_{spp:g}"] = [round(x, 2) for x in os.getloadavg()]
+    out = RESULTS_DIR / "slab_partial.json"
+    if out.is_file():  # rows of other settings kept
+        before = json.loads(out.read_text())
+        rows = {**{k: v for k, v in before.get("rows", {}).items() if k not in rows}, **rows}
+        loads = {**{k: v for k, v in before.get("loadavg_1_5_15", {}).items() if k not in loads}, **loads}
+    write_result("slab_partial", {"capture": str(capture), "mode": "depth", "precision": "half",
+                                  "reference": "the capture's held-out views", "loadavg_1_5_15": loads, "rows": rows})
 
 
 if __name__ == "__main__":
@@ -243,10 +385,19 @@ if __name__ == "__main__":
     parser.add_argument("--poses", type=Path, default=None, help="COLMAP's poses folder (adds slab-colmap rows)")
     parser.add_argument("--built", nargs="*", default=None, metavar="LABEL=DIR",
                         help="score slab stage folders already built instead of building CONFIGS")
+    parser.add_argument("--merge", action="store_true", help="keep the rows already in slab_capture_resolution.json")
+    parser.add_argument("--partial", type=Path, default=None, metavar="CAPTURE_DIR",
+                        help="per-view partial slabs (module docstring): ablations at a fraction of the cost")
+    parser.add_argument("--st-per-pixel", default="0.5,1.0", help="--partial: comma-separated st_per_pixel values")
+    parser.add_argument("--uv-res", type=int, default=8, help="--partial: uv samples along a uv quad's longer side")
     ns = parser.parse_args()
-    if ns.capture_resolution is None:
+    if ns.partial is not None:
+        partial(ns.partial.resolve(), [float(x) for x in ns.st_per_pixel.split(",")], ns.uv_res,
+                ns.poses.resolve() if ns.poses else None)
+    elif ns.capture_resolution is None:
         main()
     else:
         built = None if ns.built is None else {k: Path(v) for k, v in (b.split("=", 1) for b in ns.built)}
         with tempfile.TemporaryDirectory(prefix="bench_slab_cr_") as tmp:
-            capture_resolution(ns.capture_resolution.resolve(), ns.poses.resolve() if ns.poses else None, Path(tmp), built)
+            capture_resolution(ns.capture_resolution.resolve(), ns.poses.resolve() if ns.poses else None, Path(tmp), built,
+                               ns.merge)
