@@ -92,6 +92,8 @@ CATALOGUE: tuple[HardCase, ...] = (
     HardCase("render/lightfield/", "camera exactly on the uv plane", "tests/render/test_slab.py::test_hard_case_camera_exactly_on_the_uv_plane"),
     HardCase("render/lightfield/", "cameras along the planes and beyond st (compiled path)",
              "tests/render/test_slab.py::test_hard_case_cameras_along_the_planes_and_beyond_st_compiled_path"),
+    HardCase("render/lightfield/", "depth mode beside an occluder and into empty space",
+             "tests/render/test_lightfield_occlusion.py::test_depth_mode_has_no_ghosts_beside_an_occluder_or_in_empty_space"),
     HardCase("render/metrics.py", "identical images through every metric", "tests/render/test_metrics.py::test_identical_images_through_every_metric"),
     HardCase("render/metrics.py", "HDR-ꟻLIP of mostly or entirely black frames", "tests/render/test_metrics.py::test_hard_case_hdr_flip_on_dark_references"),
     # ---- the rasterizer
