@@ -90,8 +90,9 @@ class ColmapConfig:
     * 224 views, rings of 96 + 96 and 32 held out (``python -m bench.bench_poses --views 224
       --configs capture_order+global``): 3168 pairs (exhaustive: 24,976), 224/224, 0.024 deg
       (issue 21: name-order sequential + incremental 0.029 deg); with the subject's box, doubling
-      steps (1,376 pairs), no retriangulation and 10 final iterations: 0.021 deg, extract 473 s,
-      match 278 s, map 311-455 s at load 7-9 (1253 / 458 / 880 s before, load 7-11).
+      steps (1,376 pairs), no retriangulation and 10 final iterations: 0.021 deg, extract 123 s,
+      match 45 s, map 121 s on the quiet machine (473 / 278 / 311-455 s at load 7-9; the
+      earlier defaults 1253 / 458 / 880 s at load 7-11).
     * 1000 views (issue 21): the incremental mapper on 8,977 sequential pairs was stopped after
       77 minutes, still mapping; the global mapper on the same matches registered 1000/1000 at
       0.029 deg in 11.3 minutes.
