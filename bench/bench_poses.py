@@ -232,7 +232,8 @@ def growth(rows: list[dict]) -> list[dict]:
 
     out = []
     for cfg in dict.fromkeys(r["config"] for r in rows):
-        runs = sorted((r for r in rows if r["config"] == cfg and r["failure"] is None), key=lambda r: r["views"])
+        latest = {r["views"]: r for r in rows if r["config"] == cfg and r["failure"] is None}  # a repeat replaces
+        runs = sorted(latest.values(), key=lambda r: r["views"])
         for a, b in zip(runs, runs[1:]):
             entry = {"config": cfg, "views": [a["views"], b["views"]]}
             for key in ("pairs", "extract_s", "match_s", "map_s", "poses_wall_s"):
