@@ -64,9 +64,12 @@ poses (an input path under ``poses/<method>/``); ``end_to_end_s`` = ``time_s + u
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 import re
-from dataclasses import asdict, dataclass
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,8 +78,8 @@ from scipy.stats import t as student_t
 
 from render.image_io import write_png
 from render.image_io import read_png
-from render.metrics import (SCORE_NAMES, black_image_scores, display_noise_mse, mse_to_psnr, score_images,
-                            to_display)
+from render.metrics import (FLIP_NAMES, SCORE_NAMES, black_image_scores, display_noise_mse, flip_map, mse_to_psnr,
+                            score_images, to_display)
 
 from ..artifacts import (MANIFEST, BadInput, Manifest, atomic_stage, check_file_stem, check_out, read_json,
                          read_manifest, read_stage_manifest, write_json)
@@ -351,6 +354,81 @@ def pose_summary(artifacts_dir: Path) -> dict:
     return out
 
 
+# ------------------------------------------------------------------------------------- ꟻLIP pool
+
+
+class FlipPool:
+    """ꟻLIP error maps computed in worker processes, in step with the stage's loop.
+
+    flip_evaluator holds the GIL for a whole map (1280x960: LDR 3.3 s, HDR 6.6 s), so threads do
+    not overlap it; processes do. ``workers`` <= 1 computes each map in this process when asked
+    for. Workers are spawned (not forked: torch's thread pools do not survive a fork) on the
+    first submit and import only render.metrics."""
+
+    def __init__(self, workers: int):
+        self.workers = max(1, int(workers))
+        self._pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> "FlipPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def submit(self, pred: np.ndarray, ref: np.ndarray) -> dict[str, Future]:
+        """{"flip_ldr", "flip_hdr"}: futures of :func:`render.metrics.flip_map` of the linear
+        (H, W, 3) ``pred`` against ``ref``, each an (H, W) float32 map in [0, 1]."""
+        out = {}
+        for name, hdr in FLIP_NAMES:
+            if self.workers > 1:
+                if self._pool is None:
+                    self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+                out[name] = self._pool.submit(flip_map, pred, ref, hdr)
+            else:
+                f: Future = Future()
+                f.set_result(flip_map(pred, ref, hdr))
+                out[name] = f
+        return out
+
+
+def flip_scores(maps: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, float]:
+    """Mean ꟻLIP error of each (H, W) map over every pixel (``name``) and, given a non-empty
+    (H, W) bool ``mask``, over its pixels (``name_subject``), as :func:`render.metrics.score_images`."""
+    out = {}
+    for name, err in maps.items():
+        out[name] = float(err.mean(dtype=np.float64))
+        if mask is not None:
+            out[name + "_subject"] = float(err[mask].mean(dtype=np.float64))
+    return out
+
+
+def _score_order(scores: dict) -> dict:
+    """Score keys in :data:`render.metrics.SCORE_NAMES` order (headline first), then the rest."""
+    head = sorted((k for k in scores if k.removesuffix("_subject") in SCORE_NAMES),
+                  key=lambda k: (SCORE_NAMES.index(k.removesuffix("_subject")), k))
+    return {**{k: scores[k] for k in head}, **{k: v for k, v in scores.items() if k not in head}}
+
+
+#: below this many pixels of ꟻLIP maps in a stage (~10 s of maps), spawning workers (each imports
+#: torch, 2-3 s) costs more than it saves
+FLIP_POOL_MIN_PIXELS = 4_000_000
+
+
+def flip_workers(total_pixels: int) -> int:
+    """Worker processes for ``total_pixels`` of ꟻLIP maps (LDR and HDR counted once): the cores
+    this process may use, at most 2, or 1 (in-process) for a small stage.
+    ``LUMIGRAPH_FLIP_WORKERS`` overrides."""
+    env = os.environ.get("LUMIGRAPH_FLIP_WORKERS")
+    if env:
+        return max(1, int(env))
+    if total_pixels < FLIP_POOL_MIN_PIXELS:
+        return 1
+    from ..distributed import machine_cores
+    return min(2, machine_cores())
+
+
 # ------------------------------------------------------------------------------------- stage
 
 
@@ -427,21 +505,37 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                       "display_noise_mse": dn, "display_psnr_noise_ceiling": mse_to_psnr(dn)}
         # what an empty (black) image scores: a model must beat this to have rendered anything
         m = masks[v] if masks[v] is not None and masks[v].any() else None
-        black_views[v] = black_image_scores(r, m, with_flip=config.flip)
+        black_views[v] = (black_image_scores(r, m, with_flip=False), m)
     reference = {"spp": rp.get("spp"), "integrator": rp.get("integrator"), "views": len(views),
                  "wall_time_s": ref_manifest.get("wall_time_s"), "per_view": per_ref,
                  "subject_masks": sum(m is not None for m in masks.values())}
     for key in ("psnr_noise_ceiling", "display_psnr_noise_ceiling"):
         reference[f"{key}_mean"] = _mean([p[key] for p in per_ref.values()])
-    reference["black"] = {f"{k}_mean": _mean([b.get(k) for b in black_views.values()])
-                          for k in SUMMARY_KEYS if any(k in b for b in black_views.values())}
-    reference["black_per_view"] = black_views
     results, view_rows = {}, []
-    with atomic_stage(out, "validate", overwrite) as tmp, progress_bar(quiet) as bar:
+    no_flip = replace(config, flip=False)
+    flip_pixels = (len(models) + 1) * sum(r.shape[0] * r.shape[1] for r, _ in refs.values())  # + the black row
+    with atomic_stage(out, "validate", overwrite) as tmp, progress_bar(quiet) as bar, \
+            FlipPool(flip_workers(flip_pixels) if config.flip else 1) as flips:
         task = bar.add_task("validate", total=len(models) * len(views), info=f"{len(models)} models")
+        black_maps = {v: flips.submit(np.zeros_like(r), r) for v, (r, _) in refs.items()} if config.flip else {}
+        per_model_view: dict = {m.name: {} for m in models}
+        # (model, view, scores, subject mask, ꟻLIP futures): at most a few units' images wait on the pool
+        pending: deque = deque()
+
+        def finish_unit() -> None:
+            name, v, scores, mask, futures = pending.popleft()
+            maps = {n: f.result() for n, f in futures.items()}
+            subject = mask if mask is not None and mask.any() else None
+            scores.update(flip_scores(maps, subject))
+            if subject is None:  # as compare_view: no subject pixel, no subject figure
+                scores.update({f"{n}_subject": None for n in maps})
+            for n, err in maps.items():
+                write_png(tmp / n / model_subfolder(name) / f"{v}.png", flip_png(err))
+            per_model_view[name][v] = row = _score_order(scores)
+            view_rows.append({"model": name, "view": v, "model_view": f"{name}:{v}", **row})
+            bar.advance(task)
+
         for m in models:
-            mm = read_manifest(m.folder)
-            per_view = {}
             for v in views:
                 ref, var = refs[v]
                 path = m.folder / "renders" / f"{v}.exr"
@@ -451,15 +545,26 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
                 ref, var, k = reference_at(ref, var, img.shape, path)
                 mask = subject_mask(capture_dir, v, img.shape) if masks[v] is not None else None
                 manifest.add_input(path)
-                maps: dict = {}
-                per_view[v] = {**compare_view(img, ref, var, config, mask, maps, var_dof), "scale": k}
+                futures = flips.submit(img, ref) if config.flip else {}
+                scores = {**compare_view(img, ref, var, no_flip, mask, None, var_dof), "scale": k}
                 sub = model_subfolder(m.name)
                 write_png(tmp / "errors" / sub / f"{v}.png", error_image(img, ref, config.error_gain))
                 write_png(tmp / "zmaps" / sub / f"{v}.png", zmap_png(z_scores(img, ref, var, config.sigma_floor), z_crit))
-                for name, err in maps.items():
-                    write_png(tmp / name / sub / f"{v}.png", flip_png(err))
-                view_rows.append({"model": m.name, "view": v, "model_view": f"{m.name}:{v}", **per_view[v]})
-                bar.advance(task)
+                pending.append((m.name, v, scores, mask, futures))
+                if len(pending) > 2 * flips.workers:
+                    finish_unit()
+        while pending:
+            finish_unit()
+        for v, (scores, m) in black_views.items():
+            if v in black_maps:
+                scores.update(flip_scores({n: f.result() for n, f in black_maps[v].items()}, m))
+            black_views[v] = _score_order(scores)
+        reference["black"] = {f"{k}_mean": _mean([b.get(k) for b in black_views.values()])
+                              for k in SUMMARY_KEYS if any(k in b for b in black_views.values())}
+        reference["black_per_view"] = black_views
+        for m in models:
+            mm = read_manifest(m.folder)
+            per_view = {v: per_model_view[m.name][v] for v in views}
             method = _poses_method(mm)
             poses_s = _wall(artifacts_dir / "poses" / method) if method else None
             t = mm.get("wall_time_s")

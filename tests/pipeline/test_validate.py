@@ -269,6 +269,39 @@ def test_display_figures_subject_and_black_row_through_validate(fake_scene):
     json.dumps(met, allow_nan=False)
 
 
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_flip_in_worker_processes_matches_the_metric_in_process(fake_scene, monkeypatch, workers):
+    """validate scores ꟻLIP in a pool of processes (flip_evaluator holds the GIL): every unit's
+    figures, whole and subject, and the all-black row's are render.metrics.score_images' own,
+    in one process (workers 1) or two, with each map going to its own unit and kind."""
+    from render.image_io import write_png
+    from render.metrics import black_image_scores, score_images
+
+    monkeypatch.setenv("LUMIGRAPH_FLIP_WORKERS", workers)
+    mask = np.zeros((6, 8), np.uint8)
+    mask[1:5, 2:7] = 255
+    write_png(fake_scene / "capture" / "masks" / "test_001.png", mask)
+    rng = np.random.default_rng(9)
+    for v in ("test_000", "test_001"):  # distinct renders per unit: a map given to the wrong unit shows
+        write_exr(fake_scene / "nerf" / "fast" / "renders" / f"{v}.exr", rng.uniform(0, 1, (6, 8, 3)).astype(np.float32))
+    run_validate(fake_scene, quiet=True)
+    met = json.loads((fake_scene / "validate" / "details.json").read_text())
+    for model in ("slab", "nerf/fast"):
+        for v in ("test_000", "test_001"):
+            img = read_exr(fake_scene / model / "renders" / f"{v}.exr")
+            ref = read_exr(fake_scene / "reference" / "linear" / f"{v}.exr")
+            want = score_images(img, ref, mask > 0 if v == "test_001" else None)
+            got = met["models"][model]["per_view"][v]
+            for k in ("flip_ldr", "flip_hdr"):
+                assert got[k] == pytest.approx(want[k], abs=1e-7)
+            if v == "test_001":
+                assert got["flip_hdr_subject"] == pytest.approx(want["flip_hdr_subject"], abs=1e-7)
+            else:
+                assert got["flip_ldr_subject"] is None
+    ref1 = read_exr(fake_scene / "reference" / "linear" / "test_001.exr")
+    assert met["reference"]["black_per_view"]["test_001"] == pytest.approx(black_image_scores(ref1, mask > 0))
+
+
 def test_bad_input_names_the_file_and_writes_nothing(fake_scene, tmp_path):
     missing = fake_scene / "slab" / "renders" / "test_001.exr"
     missing.unlink()
