@@ -363,7 +363,7 @@ class FlipPool:
     flip_evaluator already spreads one map over the cores (OpenMP: 1280x960 LDR 2.4 s wall for
     3.7 CPU-s, HDR 9.2 s for 17 CPU-s), so the pool does not make the maps faster; it lets this
     process read, score (SSIM, PSNR, noise accounting) and write the next units meanwhile (the
-    default scene's validate + report: ~399 s against ~452 s in-process, one quiet run each).
+    default scene, quiet, one run each: validate 403 s against 437 s in-process).
     ``workers`` <= 1 computes each map in this process when asked for. Workers are spawned (not forked: torch's thread pools do not survive a fork) on the
     first submit and import only render.metrics."""
 
