@@ -25,7 +25,10 @@ with render.integrators.path's pruning and shadow-ray rules; a wavefront, one Em
 bounce for all rows and one occlusion query for their shadow rays. :func:`sample_paths_numpy` is
 the same function in numpy (render.bsdf's samplers, render.lights.LightSet,
 render.accel.spawn_origin), kept as the tested reference (tests/render/test_pssmlt_compiled.py:
-row by row). The Metropolis chains below stay in numpy, vectorized over a group's chains.
+row by row). The Metropolis chains run compiled too (render.integrators.pssmlt_kernels: proposals,
+acceptance, splats and counters), a wavefront over every chain of every group of a thread: one
+path sampler call per step for all of them; :func:`_run_group_numpy` is the same chain in numpy,
+value for value (the tested reference: tests/render/test_pssmlt_compiled.py).
 
 **Metropolis.** The scalar importance is I(U) = luminance (Rec. 709: 0.2126, 0.7152, 0.0722)
 of f(U) >= 0. Its integral b = E_U[I(U)] (the mean image luminance) is estimated by a bootstrap
@@ -33,7 +36,7 @@ of uniform samples; C chains are started by resampling the bootstrap samples in 
 (so each starts, approximately, in the stationary density I / b, and always with I > 0: a chain
 never moves to a zero-importance state since those are always rejected). Every step advances
 all chains together. With probability p_large a chain proposes a *large step*, a fresh uniform
-U; otherwise a *small step* perturbs every coordinate by +-s2 exp(-ln(s2 / s1) xi) (s1 = 1/1024,
+U; otherwise a *small step* perturbs every coordinate by -+s2 exp(-ln(s2 / s1) xi) (s1 = 1/1024,
 s2 = 1/64, random sign; Kelemen's mutation), wrapped into [0, 1). Both proposals are symmetric,
 so the proposal Y is accepted with a = min(1, I(Y) / I(X)).
 
@@ -70,8 +73,9 @@ the sum of the variance image. The RenderResult's film holds the K group images 
 per pixel, so Film.mean and Film.variance reproduce both.
 
 **Units of work.** A group is a pure function of (scene, camera, seed, group index, its
-mutations): it is run alone (:func:`_run_group`), never vectorized with other groups, so its
-bytes do not depend on what else is rendered. Through :func:`render.integrators.render` a render
+mutations) (:func:`_run_groups`: its chains' random numbers are a hash of their keys, every path
+a function of its primary sample alone), so its bytes do not depend on what else is rendered,
+although the groups of a render share one wavefront (per thread). Through :func:`render.integrators.render` a render
 of ``spp`` is split into K = min(:data:`GROUPS`, spp) groups over its sample range
 (:func:`render.film.group_ranges`; fewer than 8 groups, and a zero variance image for one, when
 spp < 8), and a ``sample_range`` of whole groups renders just those: renders of whole groups
@@ -94,12 +98,14 @@ participating media raise ValueError naming pssmlt. Inside a group the mutations
 chain, not independent samples: a ``sample_range`` that splits a group, and refine(), raise.
 
 Random numbers: bootstrap samples are the counter-based hash of render.sampling (seed, group,
-index, dimension); chain selection and mutations come from numpy Generators seeded by (seed,
-stream, group). Same seed, same bytes.
+index, dimension); chain selection comes from a numpy Generator seeded by (seed, stream, group);
+each chain's mutations and acceptances from the hash of its own key (seed, group, chain), step s
+reading dimensions s (D + 2) .. s (D + 2) + D + 1. Same seed, same bytes, whatever the threads.
 """
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -112,7 +118,8 @@ from ..film import Film, RenderResult, group_ranges, whole_groups
 from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
-from .volpath import trace_primary
+from .pssmlt_kernels import LUM_B, LUM_G, LUM_R, S1, S2, accept_and_splat, propose, uniform_rows
+from .volpath import VolContext, trace_primary
 
 __all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "sample_paths_numpy",
            "small_step",
@@ -122,8 +129,8 @@ __all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance
 DIMS_PER_BOUNCE = 6
 #: Rec. 709 / sRGB luminance weights of linear RGB
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-#: Kelemen's small-step range: offsets between S1 and S2, exponentially distributed
-S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
+#: a tag mixed into the seed of the chains' random streams (apart from the bootstrap's keys)
+_CHAIN_STREAM = 0x50534D4C54
 _TMAX_CAP = 3e38
 _BOOT_CHUNK = 1 << 15
 _IMPORTANCE_BINS = np.array([0.1, 1.0, 10.0, 100.0])  # I / b bin edges of the acceptance statistics
@@ -151,13 +158,14 @@ def primary_dims(max_depth: int) -> int:
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
-    """(N,) Rec. 709 luminance of (N, 3) linear RGB."""
-    return rgb @ LUMINANCE
+    """(N,) Rec. 709 luminance of (N, 3) linear RGB (summed in the compiled chains' order, so both
+    give the same bits)."""
+    return LUM_R * rgb[:, 0] + LUM_G * rgb[:, 1] + LUM_B * rgb[:, 2]
 
 
 # ---------------------------------------------------------------- the primary-sample path sampler
 def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
-                 heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
+                 heuristic: str = "power", ctx: VolContext | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)),
     in compiled code (render.integrators.volpath_kernels, every random number read from U:
     :func:`render.integrators.volpath.trace_primary`).
@@ -167,6 +175,7 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
     radiance (render.integrators.path's measurement). heuristic: MIS weights, "power" or "balance".
     See the module docstring for the column layout and conventions; :func:`sample_paths_numpy`
     is the same function in numpy (the tested reference: tests/render/test_pssmlt_compiled.py).
+    ctx: a ``VolContext(ps, None)`` to reuse across calls (saves re-packing the materials).
     """
     U = np.asarray(U, dtype=np.float64)
     if U.ndim != 2 or U.shape[1] < primary_dims(max_depth):
@@ -178,7 +187,7 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
     if len(U) == 0:
         return pix, np.zeros((0, 3))
     o, d = camera.pixel_rays(np.stack([x, y], axis=1))
-    return pix, trace_primary(ps, o, d, U, max_depth, caustics, heuristic)
+    return pix, trace_primary(ps, o, d, U, max_depth, caustics, heuristic, ctx)
 
 
 def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
@@ -285,23 +294,50 @@ def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_dep
 
 
 # ---------------------------------------------------------------- mutations and the bootstrap
-def small_step(U: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Kelemen's small step: every coordinate of U (N, D) moved by +-S2 exp(-ln(S2 / S1) xi),
-    xi uniform, random sign, wrapped into [0, 1). A symmetric proposal. Returns a new array."""
-    xi = rng.random(U.shape)
-    sign = np.where(rng.random(U.shape) < 0.5, -1.0, 1.0)
-    v = np.mod(U + sign * (S2 * np.exp(-np.log(S2 / S1) * xi)), 1.0)
-    v[v >= 1.0] = 0.0  # mod of a tiny negative number rounds to 1.0
+def small_step(U: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Kelemen's small step: every coordinate of U (N, D) moved by -+S2 exp(-ln(S2 / S1) xi),
+    wrapped into [0, 1), from uniforms u (N, D): the sign from h = [u >= 1/2], xi = 2u - h (the
+    compiled chains' arithmetic: render.integrators.pssmlt_kernels.propose). A symmetric
+    proposal. Returns a new array."""
+    hi = (u >= 0.5).astype(np.float64)
+    v = U + (2.0 * hi - 1.0) * (S2 * np.exp(-np.log(S2 / S1) * (2.0 * u - hi)))
+    v = v - np.floor(v)
+    v[v >= 1.0] = 0.0  # a tiny negative number wraps to 1.0 in rounding
     return v
 
 
-def _evaluate(ps, camera, U, max_depth, caustics, heuristic):
-    """sample_paths plus the importance, with non-finite contributions zeroed (and counted)."""
-    pix, f = sample_paths(ps, camera, U, max_depth, caustics, heuristic)
-    bad = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0)
+def _sanitize(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contributions (N, 3) with non-finite or negative rows zeroed (in place), and (N,) bool
+    which rows were."""
+    bad = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0) if len(f) else np.zeros(0, bool)
     if bad.any():
         f[bad] = 0.0
+    return f, bad
+
+
+def _evaluate(ps, camera, U, max_depth, caustics, heuristic, ctx=None):
+    """sample_paths plus the importance, with non-finite contributions zeroed (and counted)."""
+    pix, f = sample_paths(ps, camera, U, max_depth, caustics, heuristic, ctx)
+    f, bad = _sanitize(f)
     return pix, f, luminance(f), int(bad.sum())
+
+
+def _bootstrap_keys(seed: int, group: int, n: int) -> np.ndarray:
+    return path_keys(seed, np.full(n, group, np.int64), np.arange(n))
+
+
+def _bootstraps(ps: PreparedScene, camera: Camera, groups, n: int, max_depth: int, seed: int, caustics: bool,
+                heuristic: str, ctx: VolContext | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The bootstraps of several groups, traced together in chunks (every row is a pure function
+    of its primary sample, so a group's values do not depend on the others). Returns
+    ((G, n) uint64 keys, (G, n) float64 importance)."""
+    D = primary_dims(max_depth)
+    keys = np.concatenate([_bootstrap_keys(seed, g, n) for g in groups]) if len(groups) else np.zeros(0, np.uint64)
+    imp = np.zeros(len(keys))
+    for c in range(0, len(keys), _BOOT_CHUNK):
+        kk = keys[c:c + _BOOT_CHUNK]
+        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_rows(kk, 0, D), max_depth, caustics, heuristic, ctx)[2]
+    return keys.reshape(len(groups), n), imp.reshape(len(groups), n)
 
 
 def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: int = 0, group: int = 0,
@@ -310,13 +346,23 @@ def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: i
     render.sampling keyed by (seed, group, index)). Returns ((n,) uint64 keys, (n,) float64
     importance I). b = I.mean() estimates E_U[I] = the mean image luminance; row i's sample is
     ``uniform_block(keys[i:i+1], 0, primary_dims(max_depth))``."""
-    D = primary_dims(max_depth)
-    keys = path_keys(seed, np.full(n, group, np.int64), np.arange(n))
-    imp = np.zeros(n)
-    for c in range(0, n, _BOOT_CHUNK):
-        kk = keys[c:c + _BOOT_CHUNK]
-        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_block(kk, 0, D), max_depth, caustics, heuristic)[2]
-    return keys, imp
+    keys, imp = _bootstraps(ps, camera, [group], n, max_depth, seed, caustics, heuristic)
+    return keys[0], imp[0]
+
+
+def _chain_starts(keys: np.ndarray, imp: np.ndarray, group: int, seed: int, cpg: int, D: int) -> np.ndarray:
+    """(cpg, D) starting states of a group's chains: its bootstrap samples resampled in proportion
+    to their importance (a Generator keyed by (seed, group))."""
+    rng_sel = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5053, 1, group])
+    cdf = np.cumsum(imp)
+    j = np.minimum(np.searchsorted(cdf, rng_sel.random(cpg) * cdf[-1], side="right"), len(imp) - 1)
+    return uniform_rows(keys[j], 0, D)
+
+
+def _chain_keys(seed: int, group: int, chains: np.ndarray) -> np.ndarray:
+    """(N,) uint64 hash keys of a group's chains (their indices ``chains`` before dropping dark
+    starts): step s of a chain reads dimensions s (D + 2) .. s (D + 2) + D + 1 of its key."""
+    return path_keys(int(seed) ^ _CHAIN_STREAM, np.full(len(chains), group, np.int64), chains)
 
 
 # ---------------------------------------------------------------- the integrator
@@ -386,43 +432,48 @@ class _GroupRun:
     nonfinite: int = 0
 
 
-def _run_group(ps: PreparedScene, camera: Camera, group: int, mutations: int, chains: int, n_bootstrap: int,
-               max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> _GroupRun:
-    """Group ``group``: its bootstrap (n_bootstrap samples keyed by (seed, group)), min(chains,
-    mutations) chains started by resampling it, advanced ceil(mutations / chains) steps with
-    random streams keyed by (seed, group): a pure function of its arguments, whatever other
-    groups are rendered with it. The image is scaled to an estimate of the whole image."""
+def _group_shape(chains: int, mutations: int) -> tuple[int, int]:
+    """(chains, steps) of a group: min(chains, mutations) chains of ceil(mutations / chains) steps."""
+    cpg = max(1, min(int(chains), int(mutations)))
+    return cpg, -(-int(mutations) // cpg)
+
+
+def _new_run(b: float, cpg: int, steps: int, n_bootstrap: int, npix: int) -> _GroupRun:
+    return _GroupRun(np.zeros((npix, 3)), b, cpg, steps, n_bootstrap,
+                     bins_proposed=np.zeros(len(_IMPORTANCE_BINS) + 1), bins_accepted=np.zeros(len(_IMPORTANCE_BINS) + 1))
+
+
+def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: int, chains: int, n_bootstrap: int,
+                     max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> _GroupRun:
+    """Group ``group`` with its chains in numpy, vectorized over them: the tested reference of the
+    compiled chains (:func:`_run_groups`), the same random numbers and arithmetic (equal images up
+    to the order of the splat sums). Its bootstrap (n_bootstrap samples keyed by (seed, group)),
+    min(chains, mutations) chains started by resampling it, advanced ceil(mutations / chains)
+    steps, each chain's random numbers the hash of its key (:func:`_chain_keys`). The image is
+    scaled to an estimate of the whole image."""
     k = camera.intrinsics
     npix = k.width * k.height
     D = primary_dims(max_depth)
-    cpg = max(1, min(int(chains), int(mutations)))
-    steps = -(-int(mutations) // cpg)
-    s32 = int(seed) & 0xFFFFFFFF
+    cpg, steps = _group_shape(chains, mutations)
     keys, imp = bootstrap(ps, camera, n_bootstrap, max_depth, seed, group, caustics, heuristic)
-    run = _GroupRun(np.zeros((npix, 3)), float(imp.mean()), cpg, steps, n_bootstrap,
-                    bins_proposed=np.zeros(len(_IMPORTANCE_BINS) + 1), bins_accepted=np.zeros(len(_IMPORTANCE_BINS) + 1))
+    run = _new_run(float(imp.mean()), cpg, steps, n_bootstrap, npix)
     if run.b <= 0:  # no light found: the group runs no chain and its image is black
         return run
     b = run.b
-    rng_sel = np.random.default_rng([s32, 0x5053, 1, group])
-    cdf = np.cumsum(imp)
-    j = np.minimum(np.searchsorted(cdf, rng_sel.random(cpg) * cdf[-1], side="right"), n_bootstrap - 1)
-    X = uniform_block(keys[j], 0, D)
+    X = _chain_starts(keys, imp, group, seed, cpg, D)
     pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic)
     run.nonfinite += bad
     ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
     X, pix_x, f_x, I_x = X[ok], pix_x[ok], f_x[ok], I_x[ok]
+    ckeys = _chain_keys(seed, group, np.nonzero(ok)[0])
     nc = len(X)
     acc = run.image
     rejections = np.zeros(nc, np.int64)
     moved = np.zeros(nc, bool)
-    rng = np.random.default_rng([s32, 0x5053, 2, group])
-    for _ in range(steps if nc else 0):
-        large = rng.random(nc) < large_step
-        Y = small_step(X, rng)
-        nl = int(large.sum())
-        if nl:
-            Y[large] = rng.random((nl, D))
+    for step in range(steps if nc else 0):
+        u = uniform_block(ckeys, step * (D + 2), D + 2)
+        large = u[:, 0] < large_step
+        Y = np.where(large[:, None], u[:, 1:D + 1], small_step(X, u[:, 1:D + 1]))
         pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic)
         run.nonfinite += bad
         a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
@@ -434,13 +485,13 @@ def _run_group(ps: PreparedScene, camera: Camera, group: int, mutations: int, ch
         vals = np.concatenate([f_y * w_y[:, None], f_x * w_x[:, None]])
         for c in range(3):
             acc[:, c] += np.bincount(slots, weights=vals[:, c], minlength=npix)
-        accept = rng.random(nc) < a
+        accept = u[:, D + 1] < a
         bi = np.searchsorted(_IMPORTANCE_BINS, I_x / b, side="right")
         run.bins_proposed += np.bincount(bi, minlength=len(run.bins_proposed))
         run.bins_accepted += np.bincount(bi, weights=accept, minlength=len(run.bins_proposed))
         run.proposed += nc
         run.accepted += int(accept.sum())
-        run.large += nl
+        run.large += int(large.sum())
         run.accepted_large += int((accept & large).sum())
         rejections = np.where(accept, 0, rejections + 1)
         run.longest_rejection_run = max(run.longest_rejection_run, int(rejections.max()))
@@ -452,6 +503,87 @@ def _run_group(ps: PreparedScene, camera: Camera, group: int, mutations: int, ch
     return run
 
 
+def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]], chains: int, n_bootstrap: int,
+                max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> list[_GroupRun]:
+    """Groups ``specs`` = [(group, mutations), ...] with compiled chains
+    (render.integrators.pssmlt_kernels), a wavefront over every chain of every group: one path
+    sampler call per step for all of them. Each group is the pure function of its arguments that
+    :func:`_run_group_numpy` computes (the same bootstrap, starts and chain random numbers), so
+    its bytes do not depend on which groups share the batch. Returns one run per spec, in order."""
+    k = camera.intrinsics
+    npix = k.width * k.height
+    D = primary_dims(max_depth)
+    ctx = VolContext(ps, None)
+    groups = [int(g) for g, _ in specs]
+    keys, imp = _bootstraps(ps, camera, groups, n_bootstrap, max_depth, seed, caustics, heuristic, ctx)
+    runs, starts = [], []
+    for i, (g, mutations) in enumerate(specs):
+        cpg, steps = _group_shape(chains, mutations)
+        runs.append(_new_run(float(imp[i].mean()), cpg, steps, n_bootstrap, npix))
+        starts.append(_chain_starts(keys[i], imp[i], g, seed, cpg, D) if runs[-1].b > 0 else np.zeros((0, D)))
+    X = np.concatenate(starts) if starts else np.zeros((0, D))
+    owner = np.repeat(np.arange(len(specs)), [len(x) for x in starts])
+    index_in_group = np.concatenate([np.arange(len(x)) for x in starts]) if starts else np.zeros(0, np.int64)
+    pix_x, f_x = sample_paths(ps, camera, X, max_depth, caustics, heuristic, ctx)
+    f_x, bad = _sanitize(f_x)
+    for i in range(len(specs)):
+        runs[i].nonfinite += int((bad & (owner == i)).sum())
+    I_x = luminance(f_x)
+    ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
+    X, pix_x, f_x, I_x = np.ascontiguousarray(X[ok]), pix_x[ok], np.ascontiguousarray(f_x[ok]), I_x[ok]
+    owner, index_in_group = owner[ok], index_in_group[ok]
+    ckeys = np.zeros(len(X), np.uint64)
+    for i, g in enumerate(groups):
+        mine = owner == i
+        ckeys[mine] = _chain_keys(seed, g, index_in_group[mine])
+    nc, G = len(X), len(specs)
+    b = np.array([r.b if r.b > 0 else 1.0 for r in runs])
+    image = np.zeros((G, npix, 3))
+    rejections, moved = np.zeros(nc, np.int64), np.zeros(nc, np.bool_)
+    counters = [np.zeros(G, np.int64) for _ in range(5)]  # proposed, accepted, large, accepted_large, longest
+    bins = [np.zeros((G, len(_IMPORTANCE_BINS) + 1)) for _ in range(2)]
+    nonfinite = np.zeros(G, np.int64)
+    steps_of = np.array([r.steps for r in runs], np.int64)
+    Y, large = np.zeros((nc, D)), np.zeros(nc, np.bool_)
+    active = np.arange(nc)
+    for step in range(int(steps_of.max()) if nc else 0):
+        if np.any(steps_of[owner[active]] <= step):  # groups with fewer steps have finished
+            active = active[steps_of[owner[active]] > step]
+        m = len(active)
+        propose(X, active, ckeys, step, large_step, Y, large)
+        pix_y, f_y = sample_paths(ps, camera, Y[:m], max_depth, caustics, heuristic, ctx)
+        accept_and_splat(active, ckeys, step, large_step, owner, b, X, pix_x, f_x, I_x, Y, large, pix_y,
+                         np.ascontiguousarray(f_y), image, rejections, moved, *counters, *bins, nonfinite)
+    for i, r in enumerate(runs):
+        if r.b <= 0:
+            continue
+        mine = owner == i
+        r.proposed, r.accepted, r.large, r.accepted_large, r.longest_rejection_run = (int(c[i]) for c in counters)
+        r.bins_proposed, r.bins_accepted = bins[0][i].copy(), bins[1][i].copy()
+        r.nonfinite += int(nonfinite[i])
+        r.running, r.moved = int(mine.sum()), int(moved[mine].sum())
+        r.image = image[i] * (npix / float(r.chains * r.steps))
+    return runs
+
+
+def _run_groups_threaded(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]], chains: int,
+                         n_bootstrap: int, max_depth: int, seed: int, large_step: float, caustics: bool,
+                         heuristic: str, threads: int) -> list[_GroupRun]:
+    """:func:`_run_groups` with the groups dealt round-robin to ``threads`` threads (each its own
+    wavefront; the kernels and Embree release the GIL). The same runs, in spec order, whatever
+    the threads."""
+    parts = [specs[i::threads] for i in range(min(max(int(threads), 1), len(specs)))]
+    if len(parts) <= 1:
+        return _run_groups(ps, camera, specs, chains, n_bootstrap, max_depth, seed, large_step, caustics, heuristic)
+    with ThreadPoolExecutor(len(parts)) as pool:
+        done = list(pool.map(lambda part: _run_groups(ps, camera, part, chains, n_bootstrap, max_depth, seed,
+                                                      large_step, caustics, heuristic), parts))
+    runs = [None] * len(specs)
+    for i, part_runs in enumerate(done):
+        runs[i::len(parts)] = part_runs
+    return runs
+
+
 def _check_arguments(spp: int, max_depth: int, large_step: float) -> None:
     if spp < 1 or max_depth < 0:
         raise ValueError(f"pssmlt: spp must be >= 1 and max_depth >= 0, got {spp}, {max_depth}")
@@ -461,14 +593,16 @@ def _check_arguments(spp: int, max_depth: int, large_step: float) -> None:
 
 def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,
                   prepared: PreparedScene | None = None, chains: int = 4096, large_step: float = 0.3,
-                  n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: str = "power") -> PSSMLTResult:
+                  n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: str = "power",
+                  threads: int = 2) -> PSSMLTResult:
     """Render ``camera``'s view of ``scene`` by primary-sample-space Metropolis light transport.
 
     spp: mutations per pixel on average (spp x W x H proposals in all, split evenly over the
     groups and rounded up to a whole number of steps of each group's chains). max_depth:
     maximum scattering events. chains: Markov chains in all (chains / K per group, at most its
-    mutations). groups: K >= 8 independent groups (:func:`_run_group`: each its own bootstrap of
-    n_bootstrap / K samples, its own chains and random streams). large_step: probability
+    mutations). groups: K >= 8 independent groups (:func:`_run_groups`: each its own bootstrap of
+    n_bootstrap / K samples, its own chains and random streams). threads: worker threads over the
+    groups (the bytes do not depend on them). large_step: probability
     p_large of a large step (0 <= p_large <= 1). effects: effects to simulate (default
     scene_effects(scene)); without 'caustics', caustic paths are dropped as in
     render.integrators.path. heuristic: MIS weights, "power" or "balance". Returns a :class:`PSSMLTResult`.
@@ -485,9 +619,9 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     _check_supported(scene, ps, eff)
     k = camera.intrinsics
     total = spp * k.width * k.height
-    runs = [_run_group(ps, camera, g, max(1, (g + 1) * total // groups - g * total // groups),
-                       max(1, int(chains) // groups), int(n_bootstrap) // groups, max_depth, seed, float(large_step),
-                       "caustics" in eff, heuristic) for g in range(groups)]
+    specs = [(g, max(1, (g + 1) * total // groups - g * total // groups)) for g in range(groups)]
+    runs = _run_groups_threaded(ps, camera, specs, max(1, int(chains) // groups), int(n_bootstrap) // groups,
+                                max_depth, seed, float(large_step), "caustics" in eff, heuristic, threads)
     return _result(runs, k.height, k.width, float(large_step), t0)
 
 
@@ -558,9 +692,10 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     film = Film(k.width, k.height)
     stats = {"paths": 0, "nonfinite": 0, "groups": 0, "groups_without_light": 0, "chains": 0, "mutations": 0,
              "proposed": 0, "accepted": 0}
-    for g0, g1 in ranges:
-        run = _run_group(ps, camera, first.index(g0), (g1 - g0) * npix, GROUP_CHAINS, GROUP_BOOTSTRAP,
-                         settings.max_depth, settings.seed, LARGE_STEP, "caustics" in effects, options.heuristic)
+    specs = [(first.index(g0), (g1 - g0) * npix) for g0, g1 in ranges]
+    runs = _run_groups_threaded(ps, camera, specs, GROUP_CHAINS, GROUP_BOOTSTRAP, settings.max_depth, settings.seed,
+                                LARGE_STEP, "caustics" in effects, options.heuristic, settings.threads)
+    for run in runs:
         if not np.all(np.isfinite(run.image)):
             raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
         film.add_moments(run.image, run.image * run.image, np.ones(npix, np.int64))

@@ -1,0 +1,136 @@
+"""Compiled kernels of ``pssmlt``'s Metropolis chains (render.integrators.pssmlt), a wavefront over
+chains: each call advances every active chain of a batch of independent groups by one step.
+
+A step of chain c reads D + 2 random numbers, dimensions ``step (D + 2) + j`` of the chain's
+counter-based hash key (render.sampling.uniform, splitmix64): j = 0 decides a large step
+(u < p_large), j = 1 .. D are the proposal's coordinates (a large step takes them as they are; a
+small step moves coordinate i of the state X by (2 h - 1) S2 exp(-ln(S2 / S1) xi), h = [u >= 1/2]
+and xi = 2u - h from the same number, wrapped into [0, 1)), j = D + 1 decides acceptance (u < a).
+So a chain is a pure function of (key, start state), whatever other chains share the wavefront:
+render.integrators.pssmlt._run_group_numpy is the same chain in numpy, value for value.
+
+Shapes: X, Y (C, D) float64 primary samples; pix (C,) int64 row-major pixel; f (C, 3) float64
+contribution; I (C,) float64 luminance importance; keys (C,) uint64; group (C,) int64 index of a
+chain's group in the batch (0 .. G - 1); image (G, npix, 3) float64 each group's splat sums.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .path_kernels import _uniform
+
+__all__ = ["S1", "S2", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose", "uniform_rows", "accept_and_splat"]
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
+
+#: Kelemen's small-step range: offsets between S1 and S2, exponentially distributed
+S1, S2 = 1.0 / 1024.0, 1.0 / 64.0
+_LOG_RATIO = math.log(S2 / S1)
+#: Rec. 709 luminance weights (render.integrators.pssmlt.LUMINANCE), summed in this order
+LUM_R, LUM_G, LUM_B = 0.2126, 0.7152, 0.0722
+#: I / b bin edges of the acceptance statistics (render.integrators.pssmlt._IMPORTANCE_BINS)
+IMPORTANCE_EDGES = np.array([0.1, 1.0, 10.0, 100.0])
+
+
+@njit(**_JIT)
+def propose(X, active, keys, step, large_step, Y, large):
+    """Proposals of step ``step`` for the chains ``active`` (M,) int64 (rows of X (C, D)): row m
+    of Y (>= M, D) is chain active[m]'s proposal and large[m] (bool) whether it is a large step."""
+    D = X.shape[1]
+    base = step * (D + 2)
+    for m in range(active.shape[0]):
+        c = active[m]
+        key = keys[c]
+        is_large = _uniform(key, base) < large_step
+        large[m] = is_large
+        if is_large:
+            for j in range(D):
+                Y[m, j] = _uniform(key, base + 1 + j)
+        else:
+            for j in range(D):  # branch-free in the sign (a coin flip per coordinate defeats prediction)
+                u = _uniform(key, base + 1 + j)
+                hi = 1.0 if u >= 0.5 else 0.0
+                v = X[c, j] + (2.0 * hi - 1.0) * (S2 * math.exp(-_LOG_RATIO * (2.0 * u - hi)))
+                v = v - math.floor(v)
+                Y[m, j] = v if v < 1.0 else 0.0  # a tiny negative number wraps to 1.0 in rounding
+
+
+@njit(**_JIT)
+def uniform_rows(keys, dim0, count):
+    """(N, count) float64: dimensions dim0 .. dim0 + count - 1 of each key (N,) uint64, the values
+    of render.sampling.uniform_block."""
+    out = np.empty((keys.shape[0], count))
+    for i in range(keys.shape[0]):
+        for j in range(count):
+            out[i, j] = _uniform(keys[i], dim0 + j)
+    return out
+
+
+@njit(**_JIT)
+def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_x, Y, large, pix_y, f_y,
+                     image, rejections, moved, g_proposed, g_accepted, g_large, g_accepted_large, g_longest,
+                     g_bins_proposed, g_bins_accepted, g_nonfinite):
+    """Finish step ``step`` of the chains ``active`` (M,): their proposals Y (M, D), pix_y (M,),
+    f_y (M, 3) (from the path sampler; non-finite or negative contributions are zeroed here and
+    counted in g_nonfinite). Splats Kelemen's expected-value contributions (balance heuristic with
+    the large steps) of the proposal and the current state into image[group] (b (G,): each group's
+    bootstrap normalisation), draws acceptance, moves accepted chains to their proposal, and
+    counts per group: proposals, acceptances, large steps (and their acceptances), proposals and
+    acceptances by the current state's I / b bin (G, 5), the longest rejection run.
+    rejections (C,) int64 and moved (C,) bool are the chains' running counters."""
+    D = X.shape[1]
+    u_accept = step * (D + 2) + D + 1
+    nb = IMPORTANCE_EDGES.shape[0]
+    for m in range(active.shape[0]):
+        c = active[m]
+        g = group[c]
+        bg = b[g]
+        y0, y1, y2 = f_y[m, 0], f_y[m, 1], f_y[m, 2]
+        if not (math.isfinite(y0) and math.isfinite(y1) and math.isfinite(y2)) or min(y0, y1, y2) < 0.0:
+            y0 = y1 = y2 = 0.0
+            g_nonfinite[g] += 1
+        iy = LUM_R * y0 + LUM_G * y1 + LUM_B * y2
+        ix = I_x[c]
+        a = iy / ix  # ix > 0 always: a zero-importance proposal is never accepted
+        if a > 1.0:
+            a = 1.0
+        lg = 1.0 if large[m] else 0.0
+        den_y = iy / bg + large_step
+        w_y = (a + lg) / den_y if den_y > 0.0 else 0.0
+        w_x = (1.0 - a) / (ix / bg + large_step)
+        py = pix_y[m]
+        px = pix_x[c]
+        image[g, py, 0] += y0 * w_y
+        image[g, py, 1] += y1 * w_y
+        image[g, py, 2] += y2 * w_y
+        image[g, px, 0] += f_x[c, 0] * w_x
+        image[g, px, 1] += f_x[c, 1] * w_x
+        image[g, px, 2] += f_x[c, 2] * w_x
+        accept = _uniform(keys[c], u_accept) < a
+        rel = ix / bg
+        bi = 0
+        while bi < nb and IMPORTANCE_EDGES[bi] <= rel:
+            bi += 1
+        g_bins_proposed[g, bi] += 1.0
+        g_proposed[g] += 1
+        if large[m]:
+            g_large[g] += 1
+        if accept:
+            g_bins_accepted[g, bi] += 1.0
+            g_accepted[g] += 1
+            if large[m]:
+                g_accepted_large[g] += 1
+            rejections[c] = 0
+            moved[c] = True
+            for j in range(D):
+                X[c, j] = Y[m, j]
+            pix_x[c] = py
+            f_x[c, 0], f_x[c, 1], f_x[c, 2] = y0, y1, y2
+            I_x[c] = iy
+        else:
+            rejections[c] += 1
+            if rejections[c] > g_longest[g]:
+                g_longest[g] = rejections[c]
