@@ -36,8 +36,9 @@ of uniform samples; C chains are started by resampling the bootstrap samples in 
 (so each starts, approximately, in the stationary density I / b, and always with I > 0: a chain
 never moves to a zero-importance state since those are always rejected). Every step advances
 all chains together. With probability p_large a chain proposes a *large step*, a fresh uniform
-U; otherwise a *small step* perturbs every coordinate by -+s2 exp(-ln(s2 / s1) xi) (s1 = 1/1024,
-s2 = 1/64, random sign; Kelemen's mutation), wrapped into [0, 1). Both proposals are symmetric,
+U; otherwise a *small step* perturbs every coordinate by +-s2 exp(-ln(s2 / s1) xi) (s1 = 1/1024,
+s2 = 1/64, random sign; Kelemen's mutation, its magnitudes quantized to 4096 log-spaced levels, a
+table lookup instead of an exp per coordinate), wrapped into [0, 1). Both proposals are symmetric,
 so the proposal Y is accepted with a = min(1, I(Y) / I(X)).
 
 **The estimator** (Kelemen et al. 2002, section 5; the one of smallpssmlt and Mitsuba's PSSMLT).
@@ -118,7 +119,8 @@ from ..film import Film, RenderResult, group_ranges, whole_groups
 from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
-from .pssmlt_kernels import LUM_B, LUM_G, LUM_R, S1, S2, accept_and_splat, propose, uniform_rows
+from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat, propose,
+                             uniform_rows)
 from .volpath import VolContext, trace_primary
 
 __all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "sample_paths_numpy",
@@ -295,12 +297,13 @@ def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_dep
 
 # ---------------------------------------------------------------- mutations and the bootstrap
 def small_step(U: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Kelemen's small step: every coordinate of U (N, D) moved by -+S2 exp(-ln(S2 / S1) xi),
-    wrapped into [0, 1), from uniforms u (N, D): the sign from h = [u >= 1/2], xi = 2u - h (the
-    compiled chains' arithmetic: render.integrators.pssmlt_kernels.propose). A symmetric
-    proposal. Returns a new array."""
-    hi = (u >= 0.5).astype(np.float64)
-    v = U + (2.0 * hi - 1.0) * (S2 * np.exp(-np.log(S2 / S1) * (2.0 * u - hi)))
+    """Kelemen's small step: every coordinate of U (N, D) moved by +-S2 exp(-ln(S2 / S1) xi),
+    xi uniform (quantized to SMALL_STEP_LEVELS log-spaced magnitudes), wrapped into [0, 1), from
+    uniforms u (N, D): the sign + where u >= 1/2, the level floor(2 L u) mod L (the compiled
+    chains' arithmetic: render.integrators.pssmlt_kernels.propose). A symmetric proposal.
+    Returns a new array."""
+    sign = np.where(u >= 0.5, 1.0, -1.0)
+    v = U + sign * SMALL_STEPS[(u * (2.0 * SMALL_STEP_LEVELS)).astype(np.int64) & (SMALL_STEP_LEVELS - 1)]
     v = v - np.floor(v)
     v[v >= 1.0] = 0.0  # a tiny negative number wraps to 1.0 in rounding
     return v
