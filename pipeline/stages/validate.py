@@ -78,8 +78,8 @@ from scipy.stats import t as student_t
 
 from render.image_io import write_png
 from render.image_io import read_png
-from render.metrics import (FLIP_NAMES, SCORE_NAMES, black_image_scores, display_noise_mse, flip_map, mse_to_psnr,
-                            score_images, to_display)
+from render.metrics import (FLIP_IMPLEMENTATIONS, FLIP_NAMES, SCORE_NAMES, black_image_scores, display_noise_mse,
+                            flip_map, flip_means, mse_to_psnr, score_images, score_order, to_display)
 
 from ..artifacts import (MANIFEST, BadInput, Manifest, atomic_stage, check_file_stem, check_out, read_json,
                          read_manifest, read_stage_manifest, write_json)
@@ -88,7 +88,8 @@ from ..progress import progress_bar
 from .capture import read_cameras
 
 __all__ = ["ValidateConfig", "ModelDir", "discover_models", "reference_views", "compare_view", "z_scores",
-           "model_subfolder", "zmap_png", "run_validate", "NOT_MODELS", "reference_at", "area_average", "pose_summary"]
+           "model_subfolder", "zmap_png", "run_validate", "NOT_MODELS", "reference_at", "area_average", "pose_summary",
+           "flip_implementation"]
 
 #: top-level stage folders that are not models (inputs, ground truth, or this stage)
 NOT_MODELS = ("capture", "reference", "validate", "poses", "study")
@@ -357,18 +358,28 @@ def pose_summary(artifacts_dir: Path) -> dict:
 # ------------------------------------------------------------------------------------- ꟻLIP pool
 
 
+def flip_implementation() -> str:
+    """The ꟻLIP implementation validate uses: render.metrics' torch port, or
+    ``LUMIGRAPH_FLIP_IMPLEMENTATION=flip_evaluator`` for NVIDIA's C++ package (same maps to float32
+    rounding, ~2-3x slower). BadInput naming the variable for any other value."""
+    name = os.environ.get("LUMIGRAPH_FLIP_IMPLEMENTATION") or "torch"
+    if name not in FLIP_IMPLEMENTATIONS:
+        raise BadInput(f"LUMIGRAPH_FLIP_IMPLEMENTATION: {name!r} is not one of {', '.join(FLIP_IMPLEMENTATIONS)}")
+    return name
+
+
 class FlipPool:
     """ꟻLIP error maps computed in worker processes, in step with the stage's loop.
 
-    flip_evaluator already spreads one map over the cores (OpenMP: 1280x960 LDR 2.4 s wall for
-    3.7 CPU-s, HDR 9.2 s for 17 CPU-s), so the pool does not make the maps faster; it lets this
-    process read, score (SSIM, PSNR, noise accounting) and write the next units meanwhile (the
-    default scene, quiet, one run each: validate 403 s against 437 s in-process).
-    ``workers`` <= 1 computes each map in this process when asked for. Workers are spawned (not forked: torch's thread pools do not survive a fork) on the
-    first submit and import only render.metrics."""
+    Each map already spreads over the cores (torch's intra-op threads; flip_evaluator's OpenMP),
+    so the pool does not make the maps faster; it lets this process read, score (SSIM, PSNR,
+    noise accounting) and write the next units meanwhile. ``workers`` <= 1 computes each map in
+    this process when asked for. Workers are spawned (not forked: torch's thread pools do not
+    survive a fork) on the first submit and import only render.metrics."""
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, implementation: str = "torch"):
         self.workers = max(1, int(workers))
+        self.implementation = implementation
         self._pool: ProcessPoolExecutor | None = None
 
     def __enter__(self) -> "FlipPool":
@@ -387,30 +398,12 @@ class FlipPool:
             if self.workers > 1:
                 if self._pool is None:
                     self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
-                out[name] = self._pool.submit(flip_map, pred, ref, hdr)
+                out[name] = self._pool.submit(flip_map, pred, ref, hdr, self.implementation)
             else:
                 f: Future = Future()
-                f.set_result(flip_map(pred, ref, hdr))
+                f.set_result(flip_map(pred, ref, hdr, self.implementation))
                 out[name] = f
         return out
-
-
-def flip_scores(maps: dict[str, np.ndarray], mask: np.ndarray | None) -> dict[str, float]:
-    """Mean ꟻLIP error of each (H, W) map over every pixel (``name``) and, given a non-empty
-    (H, W) bool ``mask``, over its pixels (``name_subject``), as :func:`render.metrics.score_images`."""
-    out = {}
-    for name, err in maps.items():
-        out[name] = float(err.mean(dtype=np.float64))
-        if mask is not None:
-            out[name + "_subject"] = float(err[mask].mean(dtype=np.float64))
-    return out
-
-
-def _score_order(scores: dict) -> dict:
-    """Score keys in :data:`render.metrics.SCORE_NAMES` order (headline first), then the rest."""
-    head = sorted((k for k in scores if k.removesuffix("_subject") in SCORE_NAMES),
-                  key=lambda k: (SCORE_NAMES.index(k.removesuffix("_subject")), k))
-    return {**{k: scores[k] for k in head}, **{k: v for k, v in scores.items() if k not in head}}
 
 
 #: below this many pixels of ꟻLIP maps in a stage (~10 s of maps), spawning workers (each imports
@@ -469,6 +462,7 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
         raise BadInput(f"{artifacts_dir}: no such artifacts folder")
     out = Path(out) if out is not None else artifacts_dir / "validate"
     check_out(out, "validate", overwrite)
+    implementation = flip_implementation() if config.flip else "torch"
     ref_dir = artifacts_dir / "reference"
     ref_manifest = read_stage_manifest(ref_dir, "reference")
     views = reference_views(ref_dir)
@@ -517,7 +511,7 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
     no_flip = replace(config, flip=False)
     flip_pixels = (len(models) + 1) * sum(r.shape[0] * r.shape[1] for r, _ in refs.values())  # + the black row
     with atomic_stage(out, "validate", overwrite) as tmp, progress_bar(quiet) as bar, \
-            FlipPool(flip_workers(flip_pixels) if config.flip else 1) as flips:
+            FlipPool(flip_workers(flip_pixels) if config.flip else 1, implementation) as flips:
         task = bar.add_task("validate", total=len(models) * len(views), info=f"{len(models)} models")
         black_maps = {v: flips.submit(np.zeros_like(r), r) for v, (r, _) in refs.items()} if config.flip else {}
         per_model_view: dict = {m.name: {} for m in models}
@@ -528,12 +522,12 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
             name, v, scores, mask, futures = pending.popleft()
             maps = {n: f.result() for n, f in futures.items()}
             subject = mask if mask is not None and mask.any() else None
-            scores.update(flip_scores(maps, subject))
+            scores.update(flip_means(maps, subject))
             if subject is None:  # as compare_view: no subject pixel, no subject figure
                 scores.update({f"{n}_subject": None for n in maps})
             for n, err in maps.items():
                 write_png(tmp / n / model_subfolder(name) / f"{v}.png", flip_png(err))
-            per_model_view[name][v] = row = _score_order(scores)
+            per_model_view[name][v] = row = score_order(scores)
             view_rows.append({"model": name, "view": v, "model_view": f"{name}:{v}", **row})
             bar.advance(task)
 
@@ -559,8 +553,8 @@ def run_validate(artifacts_dir: Path, out: Path | None = None, config: ValidateC
             finish_unit()
         for v, (scores, m) in black_views.items():
             if v in black_maps:
-                scores.update(flip_scores({n: f.result() for n, f in black_maps[v].items()}, m))
-            black_views[v] = _score_order(scores)
+                scores.update(flip_means({n: f.result() for n, f in black_maps[v].items()}, m))
+            black_views[v] = score_order(scores)
         reference["black"] = {f"{k}_mean": _mean([b.get(k) for b in black_views.values()])
                               for k in SUMMARY_KEYS if any(k in b for b in black_views.values())}
         reference["black_per_view"] = black_views

@@ -29,7 +29,8 @@ def test_identical_images_through_every_metric():
     a documented identical-image value here fails the first assertion."""
     image_metrics = {n for n in metrics.__all__ if callable(getattr(metrics, n))
                      and n not in ("mse_to_psnr", "to_display", "flip_map", "score_images", "black_image_scores",
-                                "display_slope", "display_noise_mse", "rounding_excess")}
+                                "display_slope", "display_noise_mse", "rounding_excess", "flip_means", "score_order",
+                                "flip_exposure_schedule")}
     assert image_metrics == set(IDENTICAL)
     assert PSNR_MAX_DB == 100.0 and 10 * math.log10(1 / MSE_FLOOR) == pytest.approx(PSNR_MAX_DB)
     for label, img in _images().items():
@@ -114,6 +115,99 @@ def test_flip_of_green_against_blue_is_its_maximum_one():
     errs = [flip(ref * (1 + d), ref) for d in (0.05, 0.2, 0.8)]
     assert 0.0 < errs[0] < errs[1] < errs[2]
     assert flip_map(ref * 1.2, ref).shape == (24, 24)
+
+
+def _flip_pairs() -> dict:
+    """(pred, ref, hdr) pairs at 96x128 for the torch ꟻLIP against flip_evaluator: LDR a constant
+    offset, noise and a blurred edge; HDR a dark scene (4% lit, one highlight 100x its median:
+    seven exposures), an offset and noise on a brighter one."""
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:96, 0:128]
+    ramp = np.stack([0.2 + 0.6 * xx / 128, 0.3 + 0.4 * yy / 96, np.full((96, 128), 0.5)], -1)
+    edge = np.where(xx < 64, 0.05, 0.8)[..., None] * np.array([1.0, 0.9, 0.7])
+    kernel = np.exp(-0.5 * (np.arange(-4, 5) / 1.5) ** 2)
+    blurred = np.apply_along_axis(lambda row: np.convolve(np.pad(row, 4, mode="edge"), kernel / kernel.sum(), "valid"),
+                                  1, edge)
+    dark = np.zeros((96, 128, 3))
+    dark[30:60, 40:90] = 0.02 * (1.0 + rng.uniform(0.0, 1.0, (30, 50, 3)))
+    dark[40:45, 50:55] = 3.0
+    return {"offset": (ramp + 0.05, ramp, False),
+            "noise": (np.clip(ramp + rng.normal(0.0, 0.05, ramp.shape), 0.0, 1.0), ramp, False),
+            "blurred edge": (blurred, edge, False),
+            "dark HDR": (dark * rng.uniform(0.8, 1.2, dark.shape), dark, True),
+            "HDR offset": (4.0 * ramp + 0.1, 4.0 * ramp, True),
+            "HDR noise": (np.abs(2.0 * ramp + rng.normal(0.0, 0.1, ramp.shape)), 2.0 * ramp, True)}
+
+
+@pytest.mark.parametrize("case", list(_flip_pairs()))
+def test_torch_flip_gives_flip_evaluators_maps(case):
+    """The torch port of ꟻLIP (flip_map's default) against NVIDIA's flip_evaluator, the oracle, on
+    the same inputs: per pixel within 1e-4 and the mean within 1e-6. Why 1e-4: both run in float32
+    and sum their convolutions in different orders (~1e-7 relative), and ꟻLIP raises the feature
+    difference to q_f = 0.5 and the colour distance to q_c = 0.7, powers with an infinite slope at
+    0, so a rounding residue of ~1e-8 where the images barely differ becomes up to ~4e-5 of error
+    (measured <= 1.4e-5 here; ~1e-3 on 0.2% of a 1280x960 turntable frame's near-black pixels,
+    mean 1e-6). A wrong filter (e.g. the blue-yellow Gaussians' widths, off by sqrt(2)) moves
+    pixels by 1e-2."""
+    pred, ref, hdr = _flip_pairs()[case]
+    got = flip_map(pred, ref, hdr)
+    want = flip_map(pred, ref, hdr, implementation="flip_evaluator")
+    assert got.dtype == np.float32 and got.shape == ref.shape[:2] and np.isfinite(got).all()
+    assert np.abs(got - want).max() <= 1e-4, case
+    assert abs(got.mean(dtype=np.float64) - want.mean(dtype=np.float64)) <= 1e-6, case
+    assert want.mean() > 0.01  # a real difference, not two zero maps
+
+
+def test_torch_flip_constants_are_flip_evaluators():
+    """The port's observer (67.02 pixels per degree), tone-mapper point x_max (flip_evaluator's
+    start exposure of a unit-luminance image is log2(x_max)) and exposure count are the package's;
+    an unknown implementation is refused."""
+    import flip_evaluator
+    ones = np.ones((8, 8, 3), np.float32)
+    _, _, params = flip_evaluator.evaluate(ones, ones, "HDR", applyMagma=False)
+    assert metrics.FLIP_PPD == params["ppd"]
+    assert math.log2(metrics._flip_x_max()) == pytest.approx(params["startExposure"], abs=1e-6)
+    for start, stop in ((1.1444, 6.8595), (-2.0, -2.0), (0.3, 0.9), (-3.5, 9.25)):
+        _, _, p = flip_evaluator.evaluate(ones, ones * 0.5, "HDR", applyMagma=False,
+                                          parameters={"startExposure": start, "stopExposure": stop})
+        schedule = metrics.flip_exposure_schedule(start, stop)
+        assert len(schedule) == p["numExposures"] and schedule[0] == np.float32(start)
+        assert schedule[-1] == pytest.approx(stop, abs=1e-5)
+    with pytest.raises(ValueError, match="implementation"):
+        flip_map(ones, ones, implementation="nvidia")
+
+
+def test_hard_case_flip_of_radiance_past_float32_squares_is_white():
+    """Hard case: HDR-ꟻLIP of a test image 1e30 times the reference (exposed, its square
+    overflows float32). The tone mapper saturates it to white: the same map as an image 1e6 times
+    the reference (already past the curve's 1 at every exposure), finite, in [0, 1]
+    (flip_evaluator turns inf / inf into black instead)."""
+    ref = np.full((16, 16, 3), 0.2)
+    ref[4:12, 4:12] = 0.6
+    huge = flip_map(ref * 1e30, ref, hdr=True)
+    assert np.isfinite(huge).all() and 0.0 < huge.min() and huge.max() <= 1.0
+    np.testing.assert_array_equal(huge, flip_map(ref * 1e6, ref, hdr=True))
+
+
+def test_score_order_puts_the_headline_first_and_flip_means_average_each_map():
+    """score_order: SCORE_NAMES' figures in its order, each name's subject figure after it, then
+    other keys as they came (validate's rows and score_images share it); flip_means: each map's
+    mean over the image and over the mask's pixels (closed form on a two-valued map)."""
+    from render.metrics import flip_means, score_order
+    scores = {"rmse": 1, "linear_psnr": 2, "flip_hdr_subject": 3, "display_psnr_subject": 4, "flip_ldr": 5,
+              "display_psnr": 6, "scale": 7, "display_ssim": 8}
+    assert list(score_order(scores)) == ["display_psnr", "display_psnr_subject", "display_ssim", "flip_ldr",
+                                         "flip_hdr_subject", "linear_psnr", "rmse", "scale"]
+    ref = np.full((8, 8, 3), 0.3)
+    mask = np.zeros((8, 8), bool)
+    mask[2:4] = True
+    assert list(score_images(ref * 1.1, ref, mask)) == [n + s for n in metrics.SCORE_NAMES for s in ("", "_subject")]
+    err = np.zeros((8, 8), np.float32)
+    err[:, :2] = 1.0  # a quarter of the image, a quarter of the mask's rows
+    err[2, 2:] = 0.5
+    got = flip_means({"flip_ldr": err}, mask)
+    assert got == {"flip_ldr": pytest.approx((16 + 3) / 64), "flip_ldr_subject": pytest.approx((4 + 3) / 16)}
+    assert flip_means({"flip_hdr": err}) == {"flip_hdr": pytest.approx(19 / 64)}
 
 
 def test_hard_case_hdr_flip_on_dark_references():
