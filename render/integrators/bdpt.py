@@ -89,8 +89,8 @@ from ..film import Film, RenderResult
 from ..lights import AREA, DIRECTIONAL, POINT, SPOT, sample_emission, scene_bounds
 from ..sampling import (_GOLDEN, _mix64, INV_PI, dot3, max3, orthonormal_frame, path_keys, to_local, to_world,
                         uniform_block)
-from .bdpt_kernels import (N_FIELDS, N_STATE, BdptConfig, connect, extend, prefix_sums, queue_bound, start_camera,
-                           start_light, trace_batch)
+from .bdpt_kernels import (N_FIELDS, N_STATE, BdptConfig, add_pass_moments, connect, extend, prefix_sums, queue_bound,
+                           start_camera, start_light, trace_batch)
 from .path import kernel_scene_of, pinhole_of
 from .path_kernels import add_unoccluded
 from .prepared import PreparedScene, prepare
@@ -912,11 +912,9 @@ def render_bdpt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int =
         finally:
             spare.put(ws)
 
-    def add(img: np.ndarray) -> None:
-        if not np.all(np.isfinite(img)):
+    def add(img: np.ndarray) -> None:  # compiled: per-unit numpy temporaries cost ~10% of a small image's render
+        if not add_pass_moments(img, npix, film.s1, film.s2, film.n):
             raise FloatingPointError("bdpt produced a non-finite radiance (a bug: please report)")
-        x = img.reshape(-1, npix, 3)
-        film.add_moments(x.sum(0), (x * x).sum(0), np.full(npix, len(x), np.int64))
 
     rays = 0
     pending = None  # a pass's image while its pixel slices arrive (large images)

@@ -37,7 +37,7 @@ from .path_kernels import _offset as _eps
 from .path_kernels import _uniform as _u
 
 __all__ = ["BdptConfig", "N_FIELDS", "N_STATE", "start_camera", "start_light", "extend", "prefix_sums", "connect",
-           "queue_bound", "trace_batch"]
+           "queue_bound", "trace_batch", "add_pass_moments"]
 
 LAMBERT, MIRROR, DIELECTRIC = 0, 1, 2  # render.bsdf kinds
 POINT, SPOT, DIRECTIONAL = 0, 1, 2  # render.lights kinds
@@ -813,3 +813,28 @@ if _edirect.AVAILABLE:
         return rays
 else:  # pragma: no cover - the Python driver calls Embree through embreex
     trace_batch = None
+
+
+@njit(**_JIT)
+def add_pass_moments(img, npix, s1, s2, n):
+    """Add whole pass images img (P npix, 3) to a film's moments s1, s2 (npix, 3) and counts n
+    (npix,): per pixel the sum over the passes and of their squares, in numpy's order (the passes
+    summed in turn, then added), so the bytes of render.film.Film.add_moments(x.sum(0), (x * x).sum(0))
+    without its temporaries. Returns False, adding nothing, if any value is non-finite."""
+    m = img.shape[0]
+    for i in range(m):
+        if not (math.isfinite(img[i, 0]) and math.isfinite(img[i, 1]) and math.isfinite(img[i, 2])):
+            return False
+    passes = m // npix
+    for p in range(npix):
+        for c in range(3):
+            a = img[p, c]
+            b = a * a
+            for q in range(1, passes):
+                v = img[q * npix + p, c]
+                a += v
+                b += v * v
+            s1[p, c] += a
+            s2[p, c] += b
+        n[p] += passes
+    return True
