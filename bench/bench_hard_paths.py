@@ -9,7 +9,7 @@ Figures (bench/results/hard_paths.json and hard_paths_rmse_time.csv), measured i
   and ``caustic`` under scenes/glass_caustic.yaml's 0.4 m source, against a long ``path``
   render (both sources emit the same power). Each row's RMSE is over the whole image, the
   caustic region (:func:`caustic_region`) and the rest. Each of ``path`` (compiled
-  kernels), ``volpath``, ``bdpt``, ``pssmlt`` (numpy) and ``sppm`` (rows' ``spp`` = passes of
+  kernels), ``volpath``, ``bdpt``, ``pssmlt`` (compiled chains) and ``sppm`` (rows' ``spp`` = passes of
   SPPM_PHOTONS photons, the pixel count) runs at spp chosen so its wall times span path's; ``<scene>_equal_time``
   interpolates every integrator's RMSE (log-log) at the longest time all of them reached, and
   ``<scene>_vs_path_at_equal_time`` divides each run's RMSE by path's at that run's own wall
@@ -125,7 +125,7 @@ SPP_LISTS = {
     "path": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled: ~100x faster per sample
     "volpath": ([4, 16, 64], [4, 16, 64, 256, 1024, 4096]),  # compiled too
     "bdpt": ([4, 16, 64], [4, 16, 64, 256, 1024, 2048]),  # compiled: about 2x path's cost per sample
-    "pssmlt": ([4, 16], [4, 16, 64, 256]),
+    "pssmlt": ([4, 16], [4, 16, 64, 256, 1024]),  # compiled chains: ~4x path's cost per mutation
     "sppm": ([2, 8, 32], [2, 8, 32, 128, 512, 2048]),  # compiled: passes of SPPM_PHOTONS photons
 }
 CAUSTIC_INTEGRATORS = ["path", "volpath", "bdpt", "pssmlt", "sppm"]
@@ -244,8 +244,12 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
     compiled ``volpath`` on the fog scene (path cannot render media: its row is the same scene
     without the fog), and the numpy reference of volpath on both (the compiled kernels' speed-up).
     Rays per second (every Embree query) too: a fog path has several times more segments. pssmlt
-    (samples: mutations) on the caustic scene, and its path sampler alone, compiled and numpy.
-    The issue's goal: volpath within 2x of path's samples/s. Load average recorded before and after."""
+    (samples: mutations, its fixed bootstrap included) on the caustic scene, its marginal rate
+    (the extra mutations of a 4x spp run over its extra time: the cost beyond the bootstrap), and
+    its path sampler alone, compiled and numpy; compiled bdpt on the caustic scene. Every
+    integrator of a scene is timed in turn within each repeat (interleaved; medians, and the
+    per-repeat ratios to path). The issue's goal: each compiled integrator within 2x of path's
+    samples/s. Load average recorded before and after."""
     import os
 
     from render.integrators.volpath import render_volpath
@@ -276,15 +280,40 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
             # sppm: spp passes of (pixel count) photons each, a sample = one pixel's eye path of a pass
             runs["sppm"] = lambda: render(sc, cam, RenderSettings(integrator="sppm", spp=spp, max_depth=8, seed=1),
                                           prepared=ps)
-        for name, fn in runs.items():
-            t, _ = median_time(fn, repeats=reps)
-            n = k.width * k.height * (max(spp // 8, 1) if name == "volpath_numpy" else spp)
+        if scene_name == "caustic":
+            runs["bdpt"] = lambda: render(sc, cam, RenderSettings(integrator="bdpt", spp=spp, max_depth=8, seed=1),
+                                          prepared=ps)
+            # pssmlt's per-mutation rate beyond its fixed bootstrap (GROUP_BOOTSTRAP x 16 paths): 4x the mutations
+            runs["pssmlt_4x"] = lambda: render(sc, cam, RenderSettings(integrator="pssmlt", spp=4 * spp, max_depth=8,
+                                                                       seed=1), prepared=ps)
+        times = {name: [] for name in runs}
+        for fn in runs.values():  # compiled code loaded, workspaces warm
+            fn()
+        for _ in range(reps):  # interleaved: a load spike hits every integrator alike
+            for name, fn in runs.items():
+                t0 = time.perf_counter()
+                fn()
+                times[name].append(time.perf_counter() - t0)
+        out[f"{scene_name}_times_s"] = times
+        for name, ts in times.items():
+            t = float(np.median(ts))
+            n = k.width * k.height * {"volpath_numpy": max(spp // 8, 1), "pssmlt_4x": 4 * spp}.get(name, spp)
             out[f"{scene_name}_{name}_samples_per_s"] = n / t
-            if name not in ("volpath_numpy", "pssmlt"):  # Embree queries per second (pssmlt counts none)
-                out[f"{scene_name}_{name}_rays_per_s"] = fn().stats["rays"] / t
+            if name not in ("volpath_numpy", "pssmlt", "pssmlt_4x"):  # Embree queries per second (pssmlt counts none)
+                out[f"{scene_name}_{name}_rays_per_s"] = runs[name]().stats["rays"] / t
     path_sps = out["caustic_path_samples_per_s"]
     out["caustic_path_over_volpath"] = path_sps / out["caustic_volpath_samples_per_s"]
     out["caustic_path_over_pssmlt"] = path_sps / out["caustic_pssmlt_samples_per_s"]
+    out["caustic_path_over_bdpt"] = path_sps / out["caustic_bdpt_samples_per_s"]
+    out["caustic_path_over_pssmlt_per_repeat"] = [
+        tm / tp for tp, tm in zip(out["caustic_times_s"]["path"], out["caustic_times_s"]["pssmlt"])]
+    out["caustic_path_over_bdpt_per_repeat"] = [
+        tb / tp for tp, tb in zip(out["caustic_times_s"]["path"], out["caustic_times_s"]["bdpt"])]
+    # the mutations beyond the bootstrap: 3 spp x W x H more mutations in the 4x run's extra time
+    extra_t = float(np.median(out["caustic_times_s"]["pssmlt_4x"]) - np.median(out["caustic_times_s"]["pssmlt"]))
+    out["caustic_pssmlt_marginal_mutations_per_s"] = 3 * spp * k.width * k.height / extra_t if extra_t > 0 else None
+    out["caustic_path_over_pssmlt_marginal"] = (path_sps / out["caustic_pssmlt_marginal_mutations_per_s"]
+                                                if extra_t > 0 else None)
     out["fog_volpath_vs_path_without_fog"] = path_sps / out["fog_volpath_samples_per_s"]
     out["fog_volpath_rays_per_sample"] = out["fog_volpath_rays_per_s"] / out["fog_volpath_samples_per_s"]
     out["caustic_path_rays_per_sample"] = out["caustic_path_rays_per_s"] / path_sps
