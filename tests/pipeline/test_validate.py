@@ -271,7 +271,7 @@ def test_display_figures_subject_and_black_row_through_validate(fake_scene):
 
 @pytest.mark.parametrize("workers", ["1", "2"])
 def test_flip_in_worker_processes_matches_the_metric_in_process(fake_scene, monkeypatch, workers):
-    """validate scores ꟻLIP in a pool of processes (flip_evaluator holds the GIL): every unit's
+    """validate scores ꟻLIP in a pool of processes (overlapping the stage's own work): every unit's
     figures, whole and subject, and the all-black row's are render.metrics.score_images' own,
     in one process (workers 1) or two, with each map going to its own unit and kind."""
     from render.image_io import write_png
@@ -300,6 +300,28 @@ def test_flip_in_worker_processes_matches_the_metric_in_process(fake_scene, monk
                 assert got["flip_ldr_subject"] is None
     ref1 = read_exr(fake_scene / "reference" / "linear" / "test_001.exr")
     assert met["reference"]["black_per_view"]["test_001"] == pytest.approx(black_image_scores(ref1, mask > 0))
+
+
+def test_flip_implementation_is_selectable_and_checked(fake_scene, monkeypatch, tmp_path):
+    """LUMIGRAPH_FLIP_IMPLEMENTATION=flip_evaluator scores with NVIDIA's C++ package: the same
+    figures as the default torch port within the maps' float32 agreement (1e-4,
+    tests/render/test_metrics.py); any other value exits 2 with one line naming the variable,
+    through the real process, before any work."""
+    from render.metrics import score_images
+    monkeypatch.setenv("LUMIGRAPH_FLIP_WORKERS", "1")
+    monkeypatch.setenv("LUMIGRAPH_FLIP_IMPLEMENTATION", "flip_evaluator")
+    run_validate(fake_scene, quiet=True)
+    oracle_rows = json.loads((fake_scene / "validate" / "details.json").read_text())["models"]["slab"]["per_view"]
+    for v, row in oracle_rows.items():
+        want = score_images(read_exr(fake_scene / "slab" / "renders" / f"{v}.exr"),
+                            read_exr(fake_scene / "reference" / "linear" / f"{v}.exr"))  # torch
+        for k in ("flip_ldr", "flip_hdr"):
+            assert row[k] == pytest.approx(want[k], abs=1e-4) and row[k] > 0.0
+    env = {**os.environ, "LUMIGRAPH_FLIP_IMPLEMENTATION": "nvidia"}
+    p = subprocess.run([sys.executable, "-m", "pipeline", "validate", str(fake_scene), "--out", str(tmp_path / "v")],
+                       cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "LUMIGRAPH_FLIP_IMPLEMENTATION" in p.stderr
+    assert not (tmp_path / "v").exists()
 
 
 def test_bad_input_names_the_file_and_writes_nothing(fake_scene, tmp_path):
