@@ -688,6 +688,15 @@ def _vignetting_min_gain(a2: float, a4: float, k: IntrinsicsSpec) -> float:
 UNIMPLEMENTED_EFFECTS = ("motion_blur", "defocus")
 
 
+class CalibrationSpec(_Strict):
+    """A calibration sequence shot with the capture's camera (:mod:`rig.calibration`): the
+    ChArUco board object ``board`` alone, filling the frame, one frontal view and ``azimuths``
+    views at each tilt of ``tilts_deg`` (degrees from the board's normal)."""
+    board: str = Field(min_length=1, max_length=MAX_NAME_CHARS, description="the board object's name")
+    tilts_deg: list[Annotated[float, Field(gt=0, le=60)]] = Field([15.0, 30.0, 45.0], min_length=1, max_length=4)
+    azimuths: int = Field(12, ge=3, le=16)
+
+
 class SceneSpec(_Strict):
     name: Stem
     description: str = ""
@@ -702,6 +711,8 @@ class SceneSpec(_Strict):
     media: list[MediumSpec] = []
     cameras: CamerasSpec
     sensor: SensorSpec = SensorSpec()
+    #: a calibration sequence written with the capture (rig.calibration), or none
+    calibration: CalibrationSpec | None = None
     seed: Seed = 0
 
     @field_validator("up")
@@ -732,6 +743,14 @@ class SceneSpec(_Strict):
             if n in seen:
                 raise ValueError(f"objects: name '{n}' is used twice")
             seen.add(n)
+        if self.calibration is not None:
+            board = next((o for o in self.objects if o.name == self.calibration.board), None)
+            material = self.materials.get(board.material) if board is not None and board.material else None
+            texture = self.textures.get(material.texture) if isinstance(material, LambertianSpec) and material.texture \
+                else None
+            if board is None or board.shape.quad is None or texture is None or texture.charuco is None:
+                raise ValueError(f"calibration.board: '{self.calibration.board}' must name a quad object textured "
+                                 "with a charuco board")
         for e in self.effects or []:
             if e not in ALL_EFFECTS:
                 raise ValueError(f"effects: unknown effect '{e}' (known: {', '.join(sorted(ALL_EFFECTS))})")

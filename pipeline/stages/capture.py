@@ -8,6 +8,9 @@ Layout (DESIGN.md)::
     capture/transforms_{train,test}.json   Blender/TensoRF split files (file paths without extension)
     capture/colmap/               COLMAP text model     capture/targets.json        calibration boards
     capture/capture_order.json    shooting order (sequence, frame, loop)    capture/manifest.json
+    capture/calibration/images/calib_<i>.png, capture/calibration/board.json   the calibration
+                                  sequence, when the scene asks for one (rig.calibration): images
+                                  and the board's definition only, no pose
 
 Depth EXRs hold z-depth in channel ``Z``. ``transforms.json`` follows nerfstudio's format with the
 splits, masks and depth (:func:`pipeline.export.write_nerfstudio_transforms`);
@@ -122,6 +125,38 @@ def capture_view(scene, scene_key: str, plan: CapturePlan, sensor, seed: int, th
     return finish_view(cam, split, index, seed, sensor, rgb, depth, mask)
 
 
+def _capture_calibration(rig: RigScene, eng, gl_threads: int | None, seed: int, first_index: int, tmp: Path,
+                         bar) -> int:
+    """Render the scene's calibration sequence (:func:`rig.calibration.calibration_rig`), if it asks
+    for one, into ``tmp/calibration``: PNG previews (what a lab's calibration tool reads) and
+    ``board.json`` ({"board": the board's definition}). Its views draw sensor noise after the
+    capture's own (indices from ``first_index``), so the capture's views keep their bytes. Returns
+    the number of views (0: no sequence)."""
+    from rig.calibration import CALIBRATION_SPLIT, calibration_rig
+
+    cal = calibration_rig(rig)
+    if cal is None:
+        return 0
+    cams = cal.cameras[CALIBRATION_SPLIT]
+    plan = plan_capture(cal)
+    check_capture(cal, plan)
+    task = bar.add_task("calibration sequence", total=len(cams), info=plan.renderer)
+
+    def write_view(_: int, view: CapturedView) -> None:
+        write_preview(tmp / "calibration" / "images" / f"{view.camera.name}.png", view.rgb)
+        bar.advance(task)
+
+    scene = eng.share(cal.scene)
+    units = [(scene.key, plan, sensor_config(cal), seed, eng.render_threads, gl_threads, first_index + i,
+              CALIBRATION_SPLIT, c) for i, c in enumerate(cams)]
+    try:
+        map_units(eng, capture_view, units, shared=[scene], on_result=write_view, name="capture-calibration")
+    finally:
+        eng.release(scene)
+    write_json(tmp / "calibration" / "board.json", {"board": next(iter(cal.targets.values()))["board"]})
+    return len(cams)
+
+
 def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = None, quiet: bool = False,
                 cluster: ClusterConfig | LocalEngine | DaskEngine | None = None, overwrite: bool = False) -> dict:
     """Capture ``rig`` into ``out`` atomically; returns the manifest.
@@ -180,7 +215,9 @@ def run_capture(rig: RigScene, scene_file: Path, out: Path, seed: int | None = N
                 manifest.params.setdefault("blender_split_files", str(exc).split(": ", 1)[-1])
         write_json(tmp / "targets.json", rig.targets)
         write_json(tmp / "capture_order.json", capture_order(rig, splits))
+        calibration_views = _capture_calibration(rig, eng, gl_threads, seed, n_views, tmp, bar)
         manifest.metrics = {"views": n_views, **{f"views_{s}": split_of.count(s) for s in splits},
-                            "engine": eng.name, "workers": eng.workers}
+                            "engine": eng.name, "workers": eng.workers,
+                            **({"calibration_views": calibration_views} if calibration_views else {})}
         result = manifest.write(tmp)
     return result
