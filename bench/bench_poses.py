@@ -269,7 +269,8 @@ def lens_benchmark(calibrations: list[str], keep: Path | None) -> None:
                 raise SystemExit("capture of real_lens failed")
         for name in calibrations:
             calibration, _, model = name.partition(":")
-            cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=calibration != "self", camera_model=model or "auto"),
+            cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=calibration not in ("self", "auto"),
+                                                  camera_model=model or "auto"),
                               calibration=calibration)
             folder = root / "real_lens" / f"poses_{name.replace(':', '_')}"
             load_before = os.getloadavg()[0]

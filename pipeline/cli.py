@@ -112,8 +112,10 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
           camera_model: str = typer.Option("auto", help="COLMAP self-calibration's lens: auto | SIMPLE_RADIAL | "
                                                         "RADIAL | OPENCV | FULL_OPENCV"),
           calibration: Optional[str] = typer.Option(None, help="COLMAP intrinsics: known | self | charuco "
-                                                               "(cv2.calibrateCamera on the boards, held fixed); "
-                                                               "default self with --self-calibrate, else known"),
+                                                               "(cv2.calibrateCamera on the capture's calibration "
+                                                               "sequence, else its views' boards, held fixed) | auto "
+                                                               "(the sequence if it has one that fits, else self); "
+                                                               "default auto with --self-calibrate, else known"),
           image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
           max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
           matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | capture_order | sequential"),
@@ -126,11 +128,11 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
     from .stages.poses import PosesConfig, run_poses
 
     try:
-        calibration = calibration or ("self" if self_calibrate else "known")
+        calibration = calibration or ("auto" if self_calibrate else "known")
         if self_calibrate and calibration == "known":
             raise BadInput("--calibration known contradicts --self-calibrate")
-        cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=calibration != "self", image_scale=image_scale,
-                                              max_features=max_features, matcher=matcher,
+        cfg = PosesConfig(colmap=ColmapConfig(known_intrinsics=calibration not in ("self", "auto"),
+                                              image_scale=image_scale, max_features=max_features, matcher=matcher,
                                               mapper=mapper, camera_model=camera_model),
                           charuco=CharucoConfig(calibrate=self_calibrate), calibration=calibration)
     except ValueError as exc:

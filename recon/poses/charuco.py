@@ -28,7 +28,8 @@ from render.camera import Camera, Intrinsics
 from render.poses import invert_rigid
 
 __all__ = ["CharucoConfig", "CharucoResult", "BoardNotFound", "make_board", "detect_board",
-           "calibrate_intrinsics", "estimate_charuco"]
+           "calibrate_intrinsics", "estimate_charuco", "SequenceCalibration", "calibrate_sequence",
+           "refine_corners_frontal"]
 
 
 class BoardNotFound(ValueError):
@@ -238,3 +239,159 @@ def estimate_charuco(images: Mapping[str, np.ndarray], targets: Mapping[str, Map
     order = {n: i for i, n in enumerate(names)}
     not_visible.sort(key=order.get)
     return CharucoResult(cameras, not_visible, corners, float(np.concatenate(residuals).mean()), intrinsics, rms)
+
+
+# --------------------------------------------------------------------------- calibration sequence
+
+#: pixels per board square of the fronto-parallel image corners are refined in: the view's own
+#: (median over its corners) within these bounds, so the resampling neither blurs nor magnifies
+#: much (magnified 2-5x, cornerSubPix's window shrinks to a pixel or two of the real image)
+FRONTAL_PX_PER_SQUARE = (24, 96)
+
+
+@dataclass
+class SequenceCalibration:
+    """The lens from a calibration sequence (:func:`calibrate_sequence`). intrinsics: +0.5
+    convention, k1 k2 p1 p2 (k3 = 0); rms_px: cv2.calibrateCamera's RMS residual of the final
+    pass; views: views used (of ``views_total``); corners: corners used; detected_rms_px: the
+    RMS of the first pass on the detector's corners; radius_rel_max: the farthest used corner
+    from the image centre over the half-diagonal (1 = the image's corners: how much of the
+    lens the data measured)."""
+
+    intrinsics: Intrinsics
+    rms_px: float
+    views: int
+    views_total: int
+    corners: int
+    detected_rms_px: float
+    radius_rel_max: float
+
+
+def _calibrate(obj: list[np.ndarray], img: list[np.ndarray], width: int, height: int, square_pixels: bool):
+    """cv2.calibrateCamera (k1 k2 p1 p2, k3 fixed at 0; fx = fy with ``square_pixels``):
+    (rms, K, dist (5,), rvecs, tvecs)."""
+    flags = cv2.CALIB_FIX_K3 | (cv2.CALIB_FIX_ASPECT_RATIO if square_pixels else 0)
+    K0 = np.eye(3)  # with CALIB_FIX_ASPECT_RATIO only its fx / fy ratio (1) is read
+    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        [o.astype(np.float32).reshape(-1, 1, 3) for o in obj], [p.astype(np.float32).reshape(-1, 1, 2) for p in img],
+        (width, height), K0, None, flags=flags,
+        criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    d = np.concatenate([np.asarray(dist, dtype=np.float64).ravel(), np.zeros(5)])[:5]
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(d)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise BoardNotFound("cv2.calibrateCamera diverged (too few or degenerate board views)")
+    return float(rms), K, d, rvecs, tvecs
+
+
+def refine_corners_frontal(gray: np.ndarray, corners: np.ndarray, square: float, marker: float, K: np.ndarray,
+                           dist: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+                           px_per_square: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Refine board corners in a fronto-parallel resampling of the view (Datta, Kim and Kanade
+    2009, "Accurate camera calibration using iterative refinement of control points").
+
+    The view is resampled (bicubic) onto the board plane at ``px_per_square`` pixels a square
+    (None: the view's own median square size in pixels, within :data:`FRONTAL_PX_PER_SQUARE`)
+    through the current model (K, dist, rvec, tvec; OpenCV conventions); each corner is found by
+    ``cv2.cornerSubPix`` there, starting from where the model puts it, in a window that stays
+    inside the white margin around the markers; the refined board point is projected back.
+    Refining in the camera's image is biased: the rendered (box-filtered, nearly aliased) edges
+    and the lens's curvature move cornerSubPix's answer by ~0.1 px with the sub-pixel phase
+    (0.155 px RMS against the true projection on scenes/real_lens.yaml's sequence; 0.055 px here).
+
+    gray: (H, W) uint8. corners: (N, 3) board-frame corners (z = 0). square, marker: the
+    board's lengths. Returns ((M, 2) float64 image positions, OpenCV convention, (M,) int
+    indices into ``corners``) of the corners whose whole window lies inside the image.
+    """
+    pts = np.asarray(corners, dtype=np.float64)
+    if px_per_square is None:
+        ends, _ = cv2.projectPoints(np.concatenate([pts, pts + [square, 0, 0], pts + [0, square, 0]]), rvec, tvec, K, dist)
+        a, b, c = ends.reshape(3, -1, 2)
+        side = np.median(np.concatenate([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - a, axis=1)]))
+        px_per_square = int(np.clip(round(side), *FRONTAL_PX_PER_SQUARE))
+    lo = pts[:, :2].min(0) - square
+    hi = pts[:, :2].max(0) + square
+    scale = square / px_per_square  # board units per frontal pixel
+    cw, ch = (int(np.ceil(v)) for v in (hi - lo) / scale)
+    jj, ii = np.meshgrid(np.arange(cw) + 0.5, np.arange(ch) + 0.5)
+    plane = np.column_stack([lo[0] + jj.ravel() * scale, lo[1] + ii.ravel() * scale, np.zeros(jj.size)])
+    m, _ = cv2.projectPoints(plane, rvec, tvec, K, dist)
+    m = m.reshape(ch, cw, 2).astype(np.float32)
+    frontal = cv2.remap(gray.astype(np.float32), m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+    seen = cv2.remap(np.ones(gray.shape, np.uint8), m[..., 0], m[..., 1], cv2.INTER_NEAREST,
+                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # the window: inside the white margin between a square's edge and its marker
+    win = max(2, int(0.7 * 0.5 * (square - marker) / scale))
+    inside = cv2.erode(seen, np.ones((2 * win + 5, 2 * win + 5), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    start = (pts[:, :2] - lo) / scale - 0.5  # frontal pixel coordinates, integer centres
+    c = np.round(start).astype(int)
+    ok = (c[:, 0] >= 0) & (c[:, 1] >= 0) & (c[:, 0] < cw) & (c[:, 1] < ch)
+    ok[ok] = inside[c[ok, 1], c[ok, 0]] > 0
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return np.zeros((0, 2)), idx
+    ref = cv2.cornerSubPix(frontal, start[idx].astype(np.float32).reshape(-1, 1, 2).copy(), (win, win), (-1, -1),
+                           (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)).reshape(-1, 2)
+    board_pts = np.column_stack([lo + (ref.astype(np.float64) + 0.5) * scale, np.zeros(len(ref))])
+    img, _ = cv2.projectPoints(board_pts, rvec, tvec, K, dist)
+    return img.reshape(-1, 2), idx
+
+
+def calibrate_sequence(images: Mapping[str, np.ndarray], board_def: Mapping, square_pixels: bool = True,
+                       iterations: int = 1, min_corners: int = 8, outlier_sigma: float = 4.0) -> SequenceCalibration:
+    """The lens from a calibration sequence: views of one ChArUco board (``board_def``, a
+    ``targets.json`` board dict) shot by the capture's camera, as a lab calibrates.
+
+    1. Detect the board in every view (:func:`detect_board`) and calibrate
+       (``cv2.calibrateCamera``: k1 k2 p1 p2, k3 = 0, fx = fy when ``square_pixels``, the
+       default: a sensor's pixels are square and COLMAP's one-focal models assume it too).
+    2. ``iterations`` times: refine the detected corners in each view's fronto-parallel
+       resampling through the current model (:func:`refine_corners_frontal`), calibrate again,
+       drop corners whose residual exceeds ``outlier_sigma`` times the RMS and calibrate once more.
+       One iteration takes the corners' error against the true projection from 0.136 to 0.053 px
+       RMS on scenes/real_lens.yaml's sequence; a second changes nothing significant. (Refining
+       corners the detector missed, near the frame's edges, made the lens worse: not done.)
+
+    images: name -> (H, W) or (H, W, 3) uint8 RGB, one size. Nothing but the images and the
+    board's definition enters. Raises BoardNotFound when fewer than 3 views show the board.
+    """
+    board = make_board(board_def)
+    square, marker = float(board_def["square_length"]), float(board_def["marker_length"])
+    grays, obj, img = [], [], []
+    h = w = None
+    for name in images:
+        g = _gray(images[name])
+        h, w = g.shape
+        o, p, _ = detect_board(g, board)
+        if len(o) >= min_corners:
+            grays.append(g)
+            obj.append(o)
+            img.append(p)
+    detected = list(obj)
+    if len(grays) < 3:
+        raise BoardNotFound(f"calibration sequence: the board is seen in {len(grays)} of {len(images)} views, "
+                            "at least 3 needed")
+    rms, K, dist, rvecs, tvecs = _calibrate(obj, img, w, h, square_pixels)
+    detected_rms = rms
+    for _ in range(iterations):
+        refined = [refine_corners_frontal(g, o, square, marker, K, dist, rv, tv)
+                   for g, o, rv, tv in zip(grays, detected, rvecs, tvecs)]
+        use = [len(idx) >= min_corners for _, idx in refined]
+        obj = [o[idx] for (_, idx), o, u in zip(refined, detected, use) if u]
+        img = [p for (p, _), u in zip(refined, use) if u]
+        grays = [g for g, u in zip(grays, use) if u]
+        detected = [o for o, u in zip(detected, use) if u]
+        rms, K, dist, rvecs, tvecs = _calibrate(obj, img, w, h, square_pixels)
+        # corners cornerSubPix lost (e.g. pulled onto a marker's edge): beyond outlier_sigma RMS
+        keep = []
+        for o, p, rv, tv in zip(obj, img, rvecs, tvecs):
+            proj, _ = cv2.projectPoints(o, rv, tv, K, dist)
+            keep.append(np.linalg.norm(proj.reshape(-1, 2) - p, axis=1) <= outlier_sigma * rms)
+        if not all(k.all() for k in keep):
+            obj = [o[k] for o, k in zip(obj, keep)]
+            img = [p[k] for p, k in zip(img, keep)]
+            rms, K, dist, rvecs, tvecs = _calibrate(obj, img, w, h, square_pixels)
+        detected = obj
+    k = Intrinsics(w, h, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]) + 0.5, float(K[1, 2]) + 0.5,
+                   tuple(float(v) for v in dist))
+    used = np.concatenate(img) + 0.5
+    radius = float(np.max(np.linalg.norm(used - [w / 2, h / 2], axis=1)) / (0.5 * np.hypot(w, h)))
+    return SequenceCalibration(k, rms, len(grays), len(images), int(sum(len(o) for o in obj)), float(detected_rms), radius)
