@@ -1,7 +1,7 @@
 """Training a radiance field on a wall-clock budget, rendering and evaluating held-out views.
 
 The loop: random rays from all training pixels (a seeded generator), the model's render, MSE
-against the linear radiance (plus the coarse network's MSE for NeRF), Adam with the model's
+against the sRGB-encoded radiance (``TrainConfig.loss``; plus the coarse network's for NeRF), Adam with the model's
 learning-rate schedule, which follows *progress* = max(training time / budget, step / max_steps).
 The clock counts training only: held-out evaluations for the curve and checkpoint writes are
 excluded (``wall_s`` in the curve counts everything). Same seed, same data order; the schedule
@@ -64,6 +64,11 @@ class TrainConfig:
     clock: str = "wall"
     #: replaces fields of the registry's model config (e.g. smaller grids in tests)
     overrides: tuple[tuple[str, object], ...] = ()
+    #: the training loss: "display" (MSE on the sRGB encoding, what display PSNR scores: dark regions
+    #: weigh as a viewer sees them) or "linear" (MSE on linear radiance). Fast NeRF on the default
+    #: scene, 400 steps, same seed: display 25.79 dB / SSIM 0.927 / linear 27.96 dB against 21.93 /
+    #: 0.731 / 27.12 with the linear loss (held-out views at 160x120)
+    loss: str = "display"
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -72,6 +77,8 @@ class TrainConfig:
             raise ValueError(f"minutes must be a positive number, got {self.minutes}")
         if self.clock not in ("wall", "cpu"):
             raise ValueError(f"clock must be 'wall' or 'cpu', got {self.clock!r}")
+        if self.loss not in ("linear", "display"):
+            raise ValueError(f"loss must be 'linear' or 'display', got {self.loss!r}")
         if self.max_steps is not None and self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
 
@@ -167,6 +174,15 @@ def _held_out_psnr(model: nn.Module, data: NerfData, pixels: list) -> tuple[floa
         linear.append(psnr(pred, ref))
     model.train()
     return float(np.mean(shown)), float(np.mean(linear))
+
+
+def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
+    """The sRGB transfer curve of linear radiance (any shape), differentiable and unclipped above
+    1: 12.92 x below 0.0031308, else 1.055 x^(1/2.4) - 0.055. The power's argument is clamped to
+    the knee so that its gradient (infinite at 0) is never evaluated where the linear toe applies."""
+    x = linear.clamp(min=0.0)
+    knee = 0.0031308
+    return torch.where(x <= knee, 12.92 * x, 1.055 * x.clamp(min=knee) ** (1.0 / 2.4) - 0.055)
 
 
 def _make_optimizer(model, progress: float) -> torch.optim.Optimizer:
@@ -320,7 +336,12 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             o_b, d_b, target = o_all[idx], d_all[idx], c_all[idx]
         out = model.render(o_b, d_b, training=True, generator=gen)
         mse = torch.mean((out.rgb - target) ** 2)
-        loss = mse + sum(torch.mean((a - target) ** 2) for a in out.aux)
+        if cfg.loss == "display":
+            shown = srgb_encode(target)
+            loss = torch.mean((srgb_encode(out.rgb) - shown) ** 2) + sum(
+                torch.mean((srgb_encode(a) - shown) ** 2) for a in out.aux)
+        else:
+            loss = mse + sum(torch.mean((a - target) ** 2) for a in out.aux)
         if not torch.isfinite(loss):
             raise RuntimeError(f"non-finite loss at step {step} (model {cfg.model})")
         opt.zero_grad(set_to_none=True)

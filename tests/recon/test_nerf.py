@@ -17,7 +17,8 @@ from recon.nerf.data import NerfInputError, area_downsample, camera_rays, load_d
 from recon.nerf.encoding import PositionalEncoding, sh_encoding
 from recon.nerf.models import MODELS, FastConfig, FastNeRF, make_model
 from recon.nerf.sampling import sample_pdf, stratified
-from recon.nerf.train import TrainConfig, render_view, train
+from recon.nerf.train import TrainConfig, render_view, srgb_encode, train
+from render.color import linear_to_srgb
 from render.image_io import read_exr
 
 from .nerf_fixtures import FAST_SMALL, SIZE, make_tiny_capture, tiny_cameras
@@ -308,6 +309,26 @@ def test_vanilla_colour_heads_start_at_the_mean_colour(tiny_data):
 def test_training_rejects_unknown_model():
     with pytest.raises(ValueError, match="unknown NeRF model"):
         TrainConfig(model="nope")
+    with pytest.raises(ValueError, match="loss must be"):
+        TrainConfig(loss="log")
+
+
+def test_display_loss_encoding_is_srgb_with_finite_gradients():
+    """The display loss's encoding equals the sRGB curve (render.color.linear_to_srgb) on [0, 1],
+    is continuous at the knee, and its gradient is finite everywhere, zero included (the power's
+    derivative is infinite at 0): no NaN reaches a loss."""
+    x = torch.cat([torch.zeros(1), torch.logspace(-7, 0, 2001, dtype=torch.float64),
+                   torch.tensor([0.0031308 * (1 + 1e-12), 2.0], dtype=torch.float64)])
+    x.requires_grad_(True)
+    y = srgb_encode(x)
+    ref = linear_to_srgb(x.detach().numpy()[:-1])
+    assert np.allclose(y.detach().numpy()[:-1], ref, rtol=0, atol=1e-12)
+    assert float(y[-1]) == pytest.approx(1.055 * 2.0 ** (1 / 2.4) - 0.055)  # unclipped above 1
+    y.sum().backward()
+    g = x.grad.numpy()
+    assert np.all(np.isfinite(g)) and g[0] == pytest.approx(12.92)
+    # just above the knee the power's slope, 1.055 / 2.4 * knee^(1/2.4 - 1) = 12.70: within 2% of the toe's
+    assert g[-2] == pytest.approx(1.055 / 2.4 * 0.0031308 ** (1 / 2.4 - 1)) and g[-2] == pytest.approx(12.92, rel=0.02)
 
 
 # ---------------------------------------------------------------- the stage
