@@ -13,9 +13,11 @@ take tens of seconds on 2 cores).
 Lens (``--lens self,charuco``): ``scenes/real_lens.yaml`` (the default scene through a distorting
 lens, principal point off centre, noise, vignetting; 56 views at 1280x960) captured once, then
 posed by the stage with each calibration: ``self`` (COLMAP self-calibration, ``--camera-model
-auto``; ``self:OPENCV`` names a model) or ``charuco`` (cv2.calibrateCamera on the board, held
-fixed). Writes ``bench/results/bench_poses_lens.json``: per run focal / principal point /
-projection errors against the truth, rotation error, model chosen, times, load average.
+auto``; ``self:OPENCV`` names a model), ``charuco`` (cv2.calibrateCamera on the capture's
+calibration sequence, 41 views of the board alone, held fixed) or ``auto`` (``--self-calibrate``'s
+default: the sequence's lens when it fits within 0.2 px, else ``self``). Writes
+``bench/results/bench_poses_lens.json``: per run focal / principal point / projection errors
+against the truth, rotation error, model chosen, times, load average.
 
 Scale (``--views``, the default 56,224,1000): the default scene at 1280x960 with the layouts of
 :data:`LAYOUTS` (56: its own rings of 24 + 24 and 8 held out; 224: 96 + 96 and 32; 1000: three
@@ -249,6 +251,9 @@ LENS_FIELDS = ("calibration", "camera_model", "camera_model_note", "views_regist
                "projection_error_px_max_covered", "lens_projection_error_px_max", "lens_projection_error_px_max_covered",
                "observed_radius_rel", "rotation_error_deg_mean", "rotation_error_deg_max", "center_error_rel_mean",
                "reprojection_error_px", "lens_steps", "charuco_calibration_rms_px", "charuco_calibration_views",
+               "calibration_requested", "charuco_calibration_source", "charuco_calibration_detected_rms_px",
+               "charuco_calibration_corners", "charuco_calibration_radius_rel", "projection_error_px_mean",
+               "lens_projection_error_px_mean",
                "extract_time_s", "match_time_s", "map_time_s", "wall_time_s")
 
 
