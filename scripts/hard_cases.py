@@ -96,6 +96,7 @@ CATALOGUE: tuple[HardCase, ...] = (
              "tests/render/test_lightfield_occlusion.py::test_depth_mode_has_no_ghosts_beside_an_occluder_or_in_empty_space"),
     HardCase("render/metrics.py", "identical images through every metric", "tests/render/test_metrics.py::test_identical_images_through_every_metric"),
     HardCase("render/metrics.py", "HDR-ꟻLIP of mostly or entirely black frames", "tests/render/test_metrics.py::test_hard_case_hdr_flip_on_dark_references"),
+    HardCase("render/metrics.py", "ꟻLIP of radiance whose square overflows float32", "tests/render/test_metrics.py::test_hard_case_flip_of_radiance_past_float32_squares_is_white"),
     # ---- the rasterizer
     HardCase("rig/raster.py", "degenerate triangles", "tests/rig/test_raster_hard_cases.py::test_hard_case_degenerate_triangles"),
     HardCase("rig/raster.py", "camera inside an object", "tests/rig/test_raster_hard_cases.py::test_hard_case_camera_inside_an_object"),
