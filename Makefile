@@ -33,9 +33,9 @@ $(CONFORMANCE): $(STAMP)
 
 # the demo runs the stages dvc.yaml wires, with params.yaml's values; for the default scene it then
 # records what each stage wrote in dvc.lock (dvc commit), so `dvc status` is up to date afterwards
-# (the default scene's stages render with the path tracer alone: only its kernels are warmed)
+# (`lumigraph run` compiles the kernels of the reference's integrator in the background while the
+# capture renders: on a fresh clone nothing else waits for numba)
 demo: install
-	$(BIN)/python -m pipeline.warm_kernels --only path
 	$(BIN)/lumigraph run $(SCENE)
 	if [ "$(SCENE)" = "$$(sed -n 's/^scene: *//p' params.yaml)" ]; then $(BIN)/dvc commit -f -q; fi
 

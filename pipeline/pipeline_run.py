@@ -2,6 +2,8 @@
 (:class:`pipeline.params.RunParams`)."""
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -12,7 +14,33 @@ from .distributed import ClusterConfig, engine
 from .inspect import inspect_folder
 from .params import RunParams
 
-__all__ = ["run_pipeline", "slab_layout_for"]
+__all__ = ["run_pipeline", "slab_layout_for", "warm_reference_kernels"]
+
+
+def warm_reference_kernels(rig: RigScene) -> subprocess.Popen | None:
+    """Start compiling the kernels of the integrator the reference stage will choose for ``rig``
+    (``python -m pipeline.warm_kernels --only NAME``) in a background process, or None when this
+    source tree's kernels for it are already in numba's cache.
+
+    On a fresh checkout numba compiles the path tracer's kernels on one core for ~30 s; the
+    capture stage before the reference keeps about one core of two busy, so the compile runs
+    beside it instead of before it. The caller waits for the process before the reference renders
+    (two processes compiling the same kernels would only duplicate the work)."""
+    from render import integrators
+    from render._kernel_cache import kernel_cache_dir
+    from render.effects import scene_effects
+
+    from .warm_kernels import MARKER, WARM_RENDERS
+
+    try:
+        name = integrators.prepare(rig.scene).choose(frozenset(scene_effects(rig.scene)), "auto")
+    except ValueError:
+        return None  # the reference stage refuses this scene itself, with its own message
+    folder = kernel_cache_dir()
+    if name not in {i for _, i in WARM_RENDERS} or (folder / MARKER).is_file() or (folder / f"{MARKER}.{name}").is_file():
+        return None
+    return subprocess.Popen([sys.executable, "-m", "pipeline.warm_kernels", "--only", name],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def slab_layout_for(params: RunParams = RunParams()):
@@ -61,7 +89,15 @@ def run_pipeline(rig: RigScene, scene_file: Path, root: Path, params: RunParams 
         t0 = time.perf_counter()
         lines = []
         cap = stage_dir(name, "capture", root)
-        m = run_capture(rig, scene_file, cap, seed, quiet, eng, overwrite=overwrite)
+        warming = warm_reference_kernels(rig) if "test" in rig.cameras else None
+        try:
+            m = run_capture(rig, scene_file, cap, seed, quiet, eng, overwrite=overwrite)
+        except BaseException:
+            if warming is not None:
+                warming.kill()  # numba writes each cache file whole (temporary name, then rename)
+            raise
+        if warming is not None:
+            warming.wait()  # a failed warm-up leaves the reference to compile (and report) itself
         lines.append(f"capture    {m['metrics']['views']} views, {m['params']['renderer']}, {m['wall_time_s']:.1f} s")
         if not quiet:
             inspect_folder(cap)

@@ -50,3 +50,26 @@ def test_only_a_subset_and_its_markers_through_the_process(tmp_path):
         (folder / f"{MARKER}.{i}").write_text(f"{i} 1.0\n")
     r = run()
     assert r.returncode == 0 and "already compiled" in r.stdout, r.stdout + r.stderr
+
+
+def test_lumigraph_run_compiles_the_reference_kernels_beside_the_capture(tmp_path, monkeypatch):
+    """``lumigraph run`` starts ``warm_kernels --only NAME`` in the background for the integrator
+    the reference stage will choose (direct on the default scene, volpath on a foggy one) when that
+    integrator's marker is missing, and starts nothing once the marker is there."""
+    from pipeline.pipeline_run import warm_reference_kernels
+    from rig.build import load_scene
+
+    monkeypatch.setenv("LUMIGRAPH_NUMBA_CACHE_BASE", str(tmp_path))
+    for scene, chosen in (("turntable", "direct"), ("cornell_fog", "volpath")):
+        rig = load_scene(scene)
+        proc = warm_reference_kernels(rig)
+        try:
+            assert proc is not None and proc.args[-2:] == ["--only", chosen], proc and proc.args
+        finally:
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+        folder = tmp_path / sources_digest()
+        folder.mkdir(exist_ok=True)
+        (folder / f"{MARKER}.{chosen}").write_text(f"{chosen} 1.0\n")
+        assert warm_reference_kernels(rig) is None
