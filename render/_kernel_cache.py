@@ -48,3 +48,23 @@ def use_keyed_cache() -> Path:
     if config is not None:
         config.CACHE_DIR = str(folder)
     return folder
+
+
+def skip_numba_blas_probe() -> None:
+    """Spare every process that loads a kernel numba's BLAS probe (about 0.2 s of CPU, a fifth of
+    numba's fixed cost: bench/bench_startup.py): when numba first loads or compiles a kernel it
+    imports ``numba.np.arraymath``, whose module-level ``_check_blas`` imports ``scipy.linalg``
+    (and through it scipy's array-API layer) only to decide whether ``np.correlate`` /
+    ``np.convolve`` inside jitted code take BLAS's dot or a plain loop. No kernel of ours calls
+    them, so the probe is made to fail (``scipy.linalg`` blocked in ``sys.modules`` while
+    ``numba.np.arraymath`` is imported, then unblocked); np.dot and np.linalg in jitted code are
+    unaffected (they check BLAS when typed). Call it from the main thread, as the kernel modules
+    are imported (another thread importing scipy.linalg in that window would fail); a no-op
+    when numba.np.arraymath or scipy.linalg is already imported."""
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    sys.modules["scipy.linalg"] = None  # an import of it raises ImportError: the probe answers "no BLAS"
+    try:
+        import numba.np.arraymath  # noqa: F401  (the probe runs here, once per process)
+    finally:
+        del sys.modules["scipy.linalg"]

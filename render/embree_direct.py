@@ -123,6 +123,10 @@ class DirectScene:
 if AVAILABLE:
     from numba import njit, types
 
+    from ._kernel_cache import skip_numba_blas_probe
+
+    skip_numba_blas_probe()  # before the first kernel loads (see _kernel_cache)
+
     _rtc_intersect1 = types.ExternalFunction("rtcIntersect1", types.void(types.uintp, types.uintp, types.uintp))
     _rtc_occluded1 = types.ExternalFunction("rtcOccluded1", types.void(types.uintp, types.uintp, types.uintp))
 

@@ -29,7 +29,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .._kernel_cache import skip_numba_blas_probe
 from ..sobol import DIRECTIONS, REPLICATES
+
+skip_numba_blas_probe()  # before the first kernel loads: numba's BLAS probe would import scipy.linalg
 
 __all__ = ["KernelScene", "kernel_scene", "sample_camera_rays", "shade_bounce", "last_bounce_queue", "add_unoccluded",
            "accumulate", "accumulate_replicates", "uniform_dims", "PathConfig", "PinholeCamera",

@@ -26,8 +26,12 @@ import numpy as np
 from numba import njit, types
 from numba.extending import overload
 
+from .._kernel_cache import skip_numba_blas_probe
+
 # numba freezes these as constants
 from .geometry import DEPTH_SEARCH_STEPS, EMPTY_DEPTH, FAR_DEPTH, MIN_COS, VISIBILITY_TOL
+
+skip_numba_blas_probe()  # before the first kernel loads (see render._kernel_cache)
 
 __all__ = ["N_PARAMS", "MODE_IDS", "HALF_TO_FLOAT", "select_band", "interpolate_band"]
 
