@@ -25,11 +25,14 @@ _TRANSPORT = frozenset({"direct", "shadows", "soft_shadows", "specular", "interr
 
 #: emitters subtending less than this solid angle (sr) from the scene's centre make caustics hard
 #: for path tracing. bench_hard_paths' source-size sweep with both integrators compiled (``--sweep``:
-#: glass ball under a square source 2.35 m from the scene's centre, same power, 48 x 48, load
-#: 13-17) predicts bdpt's equal-time image RMSE at 0.66x path's for glass_caustic.yaml's 0.4 m source
-#: (0.029 sr; 0.21x in the caustic), 0.53x, 0.21x, 0.02x for 0.2, 0.1, 0.05 m, and 1.12x for a
-#: 0.8 m source (0.116 sr), 1.95x for 1.6 m (0.46 sr): the threshold sits at the geometric mean of
-#: 0.029 and 0.116 sr. (With the numpy bdpt it was 0.0036 sr.)
+#: glass ball under a square source 2.35 m from the scene's centre, same power, 48 x 48; the run of
+#: bench/results/hard_paths_source_sweep.json, load 11-12) measures bdpt's equal-time image RMSE at
+#: 0.71x path's for glass_caustic.yaml's 0.4 m source (0.029 sr; 0.22x in the caustic), 0.52x,
+#: 0.21x, 0.02x for 0.2, 0.1, 0.05 m, 0.90x for a 0.8 m source (0.116 sr) and 1.52x for 1.6 m
+#: (0.46 sr): a crossover near 0.23 sr. The threshold stays at the geometric mean of 0.029 and
+#: 0.116 sr, set when the previous sweep measured 1.12x at 0.8 m: the two sweeps disagree there
+#: (0.90x / 1.12x, both under load), and 0.23 sr would also move the Cornell box's light (0.18 sr,
+#: cornell_spheres' glass) onto bdpt, unmeasured there. (With the numpy bdpt it was 0.0036 sr.)
 SMALL_SOURCE_SR = 0.058
 
 

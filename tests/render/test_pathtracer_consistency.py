@@ -143,9 +143,10 @@ def test_choose_integrator():
 
 def test_small_sources_are_measured_by_solid_angle():
     """The glass-caustic layout, with the crossover bench_hard_paths --sweep measured (compiled bdpt
-    against path): its yaml's 0.4 m source at 2.35 m from the scene's centre subtends 0.029 sr
-    (bdpt: 0.66x path's RMSE at equal time), a 0.8 m one 0.116 sr (path: bdpt 1.12x); the
-    Cornell box's 0.18 sr (path)."""
+    against path, bench/results/hard_paths_source_sweep.json, load 11-12): its yaml's 0.4 m source
+    at 2.35 m from the scene's centre subtends 0.029 sr (bdpt: 0.71x path's RMSE at equal time,
+    0.22x in the caustic), a 0.8 m one 0.116 sr (bdpt 0.90x there, 1.12x in the sweep before: the
+    threshold keeps it on path; render.integrators.choice); the Cornell box's 0.18 sr (path)."""
     big, small = prepare(caustic_scene(0.4)[0]), prepare(caustic_scene(0.2)[0])
     assert big.emitter_solid_angle == pytest.approx(0.64 / 2.35 ** 2, rel=0.02)
     assert small.emitter_solid_angle == pytest.approx(0.16 / 2.35 ** 2, rel=0.02)
