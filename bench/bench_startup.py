@@ -9,6 +9,10 @@ thresholds):
 * what the ``reference`` verb imports (``python -X importtime``): the heavy packages present
   (torch, pyrender, dask, trimesh, scipy.spatial must not be: tests/pipeline/test_startup_imports.py),
   and the largest cumulative imports;
+* numba's floor: in a fresh process (interleaved with the two commands) the seconds of importing
+  numba and calling one trivial kernel from its cache; ``floor_ratio_to_help`` = (help + floor) /
+  help, the least ratio a reference rendered by numba kernels can reach; CPU seconds of each
+  command beside the wall (a busy machine inflates them less);
 * the phases of the same work in one process: imports, scene load, scene preparation (BVH,
   materials, lights), first render (compiled kernels loaded from numba's cache), a second
   render, their difference (the kernel-cache load), and numba's cache hits / misses per kernel
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -32,6 +37,29 @@ from bench.common import write_result
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "pyrender", "dask", "distributed", "trimesh", "networkx", "scipy", "scipy.spatial", "scipy.ndimage",
          "scipy.stats", "numba", "cv2", "pydantic", "OpenGL", "recon")
+
+#: numba's own fixed cost, the floor of any process whose render runs numba kernels: a fresh
+#: process imports numba and calls a trivial kernel from numba's on-disk cache (in ``tmp``), with
+#: numba's BLAS probe skipped as render's kernel modules do (render._kernel_cache)
+_NUMBA_FLOOR = r"""
+import json, sys, time
+import numpy as np
+from render._kernel_cache import skip_numba_blas_probe
+sys.path.insert(0, sys.argv[1])
+t0 = time.perf_counter()
+import numba
+skip_numba_blas_probe()
+import trivial_kernel
+t1 = time.perf_counter()
+trivial_kernel.total(np.ones(3))
+t2 = time.perf_counter()
+print(json.dumps({"import_numba_s": t1 - t0, "first_kernel_s": t2 - t1}))
+"""
+_TRIVIAL_KERNEL = """import numba
+@numba.njit(cache=True)
+def total(x):
+    return x.sum()
+"""
 
 _PHASES = r"""
 import json, time
@@ -71,13 +99,25 @@ def _env() -> dict:
     return {**os.environ, "PYOPENGL_PLATFORM": "egl"}
 
 
-def _timed(cmd: list[str]) -> float:
+def _timed(cmd: list[str], cpu: list | None = None) -> float:
+    """Wall seconds of ``cmd`` in a fresh process; its CPU seconds (user + system, less inflated
+    by a busy machine than the wall) appended to ``cpu`` when given."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True)
     elapsed = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}: {proc.stderr.strip()[-500:]}")
+    if cpu is not None:
+        cpu.append(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime)
     return elapsed
+
+
+def _numba_floor(cmd: list[str]) -> dict:
+    """In-process seconds of numba's part (import, first cached kernel) of one fresh process."""
+    proc = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def _imports(cmd: list[str]) -> dict:
@@ -103,10 +143,15 @@ def main(argv: list[str]) -> None:
                      str(Path(tmp) / "reference"), "--overwrite", "-q"]
         help_cmd = [*lumigraph, "--help"]
         _timed(reference)  # warm the OS file cache and numba's cache (a fresh checkout compiles here)
-        help_s, ref_s = [], []
-        for _ in range(runs):  # interleaved: both see the same machine load
-            help_s.append(_timed(help_cmd))
-            ref_s.append(_timed(reference))
+        (Path(tmp) / "trivial_kernel.py").write_text(_TRIVIAL_KERNEL)
+        floor_cmd = [sys.executable, "-c", _NUMBA_FLOOR, tmp]
+        _timed(floor_cmd)  # compiles the trivial kernel into its cache
+        help_s, ref_s, floor_s = [], [], []
+        cpu = {"help": [], "reference": []}
+        for _ in range(runs):  # interleaved: all see the same machine load
+            help_s.append(_timed(help_cmd, cpu["help"]))
+            ref_s.append(_timed(reference, cpu["reference"]))
+            floor_s.append(_numba_floor(floor_cmd))
         imports_ref = _imports(["-m", "pipeline", "reference", "cornell", "--spp", "1", "--size", "32", "32", "--out",
                                 str(Path(tmp) / "reference"), "--overwrite", "-q"])
         imports_help = _imports(["-m", "pipeline", "--help"])
@@ -114,12 +159,22 @@ def main(argv: list[str]) -> None:
     phase_figures = json.loads(phases.stdout.strip().splitlines()[-1]) if phases.returncode == 0 else {
         "error": phases.stderr.strip()[-500:]}
     help_med, ref_med = statistics.median(help_s), statistics.median(ref_s)
+    floor_med = statistics.median(f["import_numba_s"] + f["first_kernel_s"] for f in floor_s)
     write_result("startup", {
         "runs": runs,
         "command": "lumigraph reference cornell --spp 1 --size 32 32 (against lumigraph --help)",
         "help_median_s": round(help_med, 3), "reference_median_s": round(ref_med, 3),
         "ratio_reference_to_help": round(ref_med / help_med, 3), "goal_ratio": 1.2,
         "help_runs_s": [round(t, 3) for t in help_s], "reference_runs_s": [round(t, 3) for t in ref_s],
+        # numba's floor: in a fresh process (interleaved with the two commands) the seconds of
+        # importing numba and calling one trivial kernel from its cache: help plus that is the
+        # least a reference rendered by numba kernels can take, whatever the CLI does
+        "numba_floor_runs": floor_s,
+        "numba_floor_median_s": round(floor_med, 3),
+        "floor_ratio_to_help": round((help_med + floor_med) / help_med, 3),
+        # the same in CPU seconds (user + system of each process): the load inflates them less
+        "cpu_median_s": {k: round(statistics.median(v), 3) for k, v in cpu.items()},
+        "cpu_ratio_reference_to_help": round(statistics.median(cpu["reference"]) / statistics.median(cpu["help"]), 3),
         "load_average": os.getloadavg(),
         "imports_reference": imports_ref, "imports_help": imports_help,
         "phases_in_process": phase_figures,
