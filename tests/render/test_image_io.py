@@ -59,6 +59,20 @@ def test_preview_follows_the_srgb_transfer_function(tmp_path):
     assert got[3] == 118 and got[4] == 188  # mid grey 0.18 -> 118, 0.5 -> 188 (published sRGB values)
 
 
+def test_linear_to_srgb_is_the_closed_form_bit_for_bit_on_any_shape():
+    """The encoder skips the power on the linear segment (a dark scene's background): the values must
+    stay exactly IEC 61966-2-1's, for an image, a scalar and values outside [0, 1]."""
+    from render.color import linear_to_srgb
+
+    rng = np.random.default_rng(3)
+    lin = np.concatenate([rng.random(500) ** 4, [-1.0, 0.0, 0.0031308, 0.00313081, 1.0, 7.0]]).reshape(2, 253, 1) * [1, 1, 1]
+    c = np.clip(lin, 0.0, 1.0)
+    expected = np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+    got = linear_to_srgb(lin)
+    assert got.shape == lin.shape and got.dtype == np.float64 and np.array_equal(got, expected)
+    assert float(linear_to_srgb(0.18)) == 1.055 * 0.18 ** (1 / 2.4) - 0.055 and float(linear_to_srgb(-2.0)) == 0.0
+
+
 def test_psnr_matches_its_closed_form_and_ssim_ranks_degradations():
     rng = np.random.default_rng(1)
     ref = rng.random((32, 32, 3)) * 0.8 + 0.1
