@@ -24,7 +24,9 @@ Scale (``--views``, the default 56,224,1000): the default scene at 1280x960 with
 train rings of 320 at 20, 35 and 50 deg and 40 held out), captured, then posed by the ``poses``
 stage (COLMAP, known intrinsics) with each of ``--configs`` (``auto`` = the stage's defaults, or
 ``MATCHER+MAPPER[+oOCTAVE]``, :func:`colmap_config`). Writes ``bench/results/bench_poses_scale.json``: per run the extract /
-match / map seconds, pairs, registered views and rotation error, with the 1-minute load
+match / map seconds (wall, and CPU seconds of the stage's threads: on the shared machine the
+wall time follows the load, the CPU time much less), the extractor, pairs, registered views and
+rotation error, with the 1-minute load
 average before and after (the machine is shared: times are only comparable within a run), and
 ``growth``: seconds per view and the exponent of time against views between consecutive counts
 (1 = linear). The rows of the previous run are set aside as ``earlier_rows`` (other code, other
@@ -167,6 +169,8 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                 row = {"views": views, "config": cfg_name, "matcher": m.get("matcher"), "mapper": m.get("mapper"),
                        "pairs": m.get("pairs"), "extract_s": m.get("extract_time_s"), "match_s": m.get("match_time_s"),
                        "map_s": m.get("map_time_s"), "refine_s": m.get("refine_time_s"),
+                       "extract_cpu_s": m.get("extract_cpu_time_s"), "match_cpu_s": m.get("match_cpu_time_s"),
+                       "map_cpu_s": m.get("map_cpu_time_s"), "extractor": m.get("extractor"),
                        "first_octave": m.get("first_octave"), "crop_box": _metrics_file(folder / f"poses_{cfg_name}").get("crop_box"),
                        "poses_wall_s": round(time.perf_counter() - t0, 1),
                        "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
@@ -188,7 +192,8 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
 #: the prefix, or the fixed value)
 MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "ba": ("final_ba_iterations", int),
              "nocrop": ("crop_to_subject", False), "consecutive": ("pair_offsets", "consecutive"),
-             "noretri": ("global_retriangulate", False)}
+             "noretri": ("global_retriangulate", False), "cvsift": ("extractor", "opencv"),
+             "colmapsift": ("extractor", "colmap"), "link": ("link_window", int), "w": ("sequential_overlap", int)}
 
 
 def _metrics_file(poses: Path) -> dict:
@@ -201,7 +206,8 @@ def colmap_config(name: str):
     """``auto`` (the stage's defaults) or ``[auto|MATCHER+MAPPER]`` followed by ``+``-separated
     modifiers (:data:`MODIFIERS`): ``oN`` SIFT's first octave N, ``tN`` the global mapper's tracks
     per view, ``baN`` final bundle adjustment iterations, ``nocrop`` the whole frame,
-    ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation; e.g.
+    ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation, ``cvsift`` /
+    ``colmapsift`` OpenCV's or COLMAP's SIFT, ``linkN`` the link window, ``wN`` the window; e.g.
     ``capture_order+global+o0`` or ``auto+nocrop+consecutive`` -> ColmapConfig."""
     from recon.poses import ColmapConfig
 

@@ -25,7 +25,8 @@ used), projection_error_px_{max,view_max_mean,mean} and lens_projection_error_px
 whole camera and the lens alone against the truth, :func:`recon.poses.projection_error`),
 estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
 options, the matcher and mapper that ran, pairs matched and {extract,match,map,refine}_time_s
-(refine: the part of map after the mapper), first_octave (SIFT's, as resolved), crop_box
+(refine: the part of map after the mapper) with {extract,match,map}_cpu_time_s (CPU seconds),
+first_octave (SIFT's, as resolved; COLMAP's SIFT only), extractor (colmap / opencv), crop_box
 (the input pixels SIFT saw, ``[x0, y0, x1, y1]``, or null for the whole frame), the
 calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
 constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre
@@ -418,7 +419,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
                  "mapper": res.mapper, "pairs": res.pairs, "camera_model": res.camera_model,
                  "camera_model_note": res.lens_note, "lens_steps": res.lens_steps,
                  "observed_radius_rel": res.observed_radius_rel, "rational_refit_px": res.rational_refit_px,
-                 "crop_box": None if res.crop_box is None else list(res.crop_box),
+                 "crop_box": None if res.crop_box is None else list(res.crop_box), "extractor": res.extractor,
                  **{f"{step}_time_s": t for step, t in res.times_s.items()}}
     else:
         cfg = config.charuco

@@ -18,7 +18,7 @@ Conventions at this boundary:
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -53,18 +53,36 @@ def opencv_sift(gray: np.ndarray, max_features: int) -> tuple[np.ndarray, np.nda
 
 
 def extract_opencv_sift(database: Path, image_dir: Path, names: Sequence[str], max_features: int,
-                        num_threads: int = 2) -> list[int]:
+                        num_threads: int = 2, box_of: Callable[[np.ndarray], tuple | None] | None = None
+                        ) -> list[int]:
     """Extract :func:`opencv_sift` features of ``image_dir/name`` for every image already imported
     into the COLMAP ``database`` (by name), ``num_threads`` images at a time (OpenCV releases the
-    GIL), and write keypoints and descriptors. Returns the feature count per image, in ``names``
-    order. An unreadable image raises ValueError naming it."""
+    GIL), and write keypoints and descriptors. Each image is read once.
+
+    box_of: the view's own box ``(x0, y0, x1, y1)`` from its pixels ``(H, W[, C])`` (e.g.
+    :func:`recon.poses.colmap.view_box`): SIFT runs on that crop only and the keypoints are shifted
+    back to the whole frame (None from it: the whole frame). Features far enough inside the box are
+    those of the whole frame; the frame's dark background has none to lose, only pixels to filter.
+    Returns the feature count per image, in ``names`` order. An unreadable image raises
+    ValueError naming it.
+    """
     import pycolmap
 
     def one(name: str) -> tuple[np.ndarray, np.ndarray]:
-        gray = cv2.imread(str(Path(image_dir) / name), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
+        img = cv2.imread(str(Path(image_dir) / name), cv2.IMREAD_UNCHANGED)
+        if img is None:
             raise ValueError(f"{Path(image_dir) / name}: unreadable image")
-        return opencv_sift(gray, max_features)
+        box = box_of(img) if box_of is not None else None
+        x0, y0, x1, y1 = box or (0, 0, img.shape[1], img.shape[0])
+        img = img[y0:y1, x0:x1]
+        if img.dtype != np.uint8:
+            img = (img >> 8).astype(np.uint8)  # 16-bit PNG: its high byte
+        if img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+        kps, desc = opencv_sift(img, max_features)
+        kps[:, 0] += x0
+        kps[:, 1] += y0
+        return kps, desc
 
     db = pycolmap.Database.open(str(database))
     counts = []
