@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -98,6 +99,9 @@ class TrainResult:
     plan: dict = field(default_factory=dict)
 
 
+#: rays per chunk of a held-out render through ``render_inference`` (one chunk per thread at a time)
+INFERENCE_CHUNK = 1 << 15
+
 #: the share of the time left that one render-cost probe may take (:func:`train`'s probe_cost)
 PROBE_SHARE = 0.02
 
@@ -121,28 +125,42 @@ def render_cost_per_ray(model: nn.Module, camera: Camera, pixels: torch.Tensor) 
 
 @torch.no_grad()
 def render_view(model: nn.Module, camera: Camera, chunk: int = 8192,
-                pixels: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+                pixels: torch.Tensor | None = None, threads: int | None = None) -> dict[str, np.ndarray]:
     """Render a camera: {"rgb": (H, W, 3), "depth": (H, W) z-depth (0 where the opacity is below
     0.5, as the capture's depth), "opacity": (H, W)}, float32. With ``pixels`` ((P,) flat
-    row-major indices) only those pixels: (P, 3), (P,), (P,)."""
+    row-major indices) only those pixels: (P, 3), (P,), (P,).
+
+    A model with ``render_inference`` (the fast model) renders through it, its rays in chunks of
+    ``INFERENCE_CHUNK`` dealt to ``threads`` threads (default torch's count), each running torch
+    single-threaded: why, measured on 2 cores shared with other processes (load 7), torch's own
+    two threads spent more time waiting for each other than working (a 1280x960 view 55 s against
+    30 s with one thread). Other models render ``chunk`` rays at a time through ``render``."""
     model.eval()
-    if pixels is None and hasattr(model, "prepare_inference"):
-        model.prepare_inference()  # a whole view repays the dense density grid
     o, d = camera_rays(camera)
     if pixels is not None:
         o, d = o[pixels], d[pixels]
-    rgb, dist, acc = [], [], []
-    # whole views through the held-out renderer (segments, dense grid); pixel subsets (the plan's
-    # probe, the curve) through the training quadrature: a few rays do not repay the segments' and
-    # the dense grid's fixed costs (measured: 60 ms per probe ray on an untrained model, load 8)
-    draw = getattr(model, "render_inference", None) if pixels is None else None
-    draw = draw or (lambda o_, d_: model.render(o_, d_, training=False))
-    for i in range(0, o.shape[0], chunk):
-        out = draw(o[i:i + chunk], d[i:i + chunk])
-        rgb.append(out.rgb)
-        dist.append(out.distance)
-        acc.append(out.opacity)
-    rgb, dist, acc = torch.cat(rgb), torch.cat(dist), torch.cat(acc)
+    if hasattr(model, "render_inference"):
+        model.prepare_inference()  # the dense density grid, built once before the threads share it
+        threads = threads or torch.get_num_threads()
+        bounds = list(range(0, o.shape[0], INFERENCE_CHUNK)) + [o.shape[0]]
+        jobs = [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        saved = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            draw = lambda ab: model.render_inference(o[ab[0]:ab[1]], d[ab[0]:ab[1]], threads=1)  # noqa: E731
+            if threads > 1 and len(jobs) > 1:
+                with ThreadPoolExecutor(threads) as pool:
+                    outs = list(pool.map(draw, jobs))
+            else:
+                outs = [draw(ab) for ab in jobs]
+        finally:
+            torch.set_num_threads(saved)
+    else:
+        outs = [model.render(o[i:i + chunk], d[i:i + chunk], training=False) for i in range(0, o.shape[0], chunk)]
+    if outs:
+        rgb, dist, acc = (torch.cat([getattr(x, k) for x in outs]) for k in ("rgb", "distance", "opacity"))
+    else:
+        rgb, dist, acc = torch.zeros(0, 3), torch.zeros(0), torch.zeros(0)
     forward = torch.from_numpy(camera.cam_to_world[:3, 2].astype(np.float32))
     z = dist * (d @ forward)
     z = torch.where(acc >= 0.5, z, torch.zeros_like(z))
