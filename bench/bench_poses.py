@@ -235,7 +235,7 @@ def growth(rows: list[dict]) -> list[dict]:
     """How each step's time grows with the views, per config: seconds per view at every view count
     and the exponent ``b`` of ``time ~ views^b`` between consecutive counts (log ratio of times over
     log ratio of views; 1 = linear, 2 = quadratic), for extract, match, map and the stage's wall
-    time, with the pairs' exponent beside them (the matcher's own growth)."""
+    time and the steps' CPU seconds, with the pairs' exponent beside them (the matcher's own growth)."""
     import math
 
     out = []
@@ -244,7 +244,8 @@ def growth(rows: list[dict]) -> list[dict]:
         runs = sorted(latest.values(), key=lambda r: r["views"])
         for a, b in zip(runs, runs[1:]):
             entry = {"config": cfg, "views": [a["views"], b["views"]]}
-            for key in ("pairs", "extract_s", "match_s", "map_s", "poses_wall_s"):
+            for key in ("pairs", "extract_s", "match_s", "map_s", "poses_wall_s", "extract_cpu_s", "match_cpu_s",
+                        "map_cpu_s"):
                 if a.get(key) and b.get(key):
                     entry[f"{key}_per_view"] = [round(a[key] / a["views"], 3), round(b[key] / b["views"], 3)]
                     entry[f"{key}_exponent"] = round(math.log(b[key] / a[key]) / math.log(b["views"] / a["views"]), 2)

@@ -51,7 +51,8 @@ def test_auto_resolves_by_view_count():
 def test_growth_exponents_are_the_log_log_slopes():
     """Times proportional to views give exponent 1, to views squared 2; per-view seconds as given."""
     rows = [{"config": "c", "views": v, "failure": None, "pairs": 21 * v, "extract_s": 0.5 * v,
-             "match_s": 0.01 * v * v, "map_s": 3.0 * v ** 1.5, "poses_wall_s": 0.5 * v + 0.01 * v * v + 3.0 * v ** 1.5}
+             "match_s": 0.01 * v * v, "map_s": 3.0 * v ** 1.5, "poses_wall_s": 0.5 * v + 0.01 * v * v + 3.0 * v ** 1.5,
+             "extract_cpu_s": 0.2 * v, "match_cpu_s": 0.02 * v * v, "map_cpu_s": 2.0 * v ** 1.5}
             for v in (56, 224, 1000)]
     rows.append({"config": "c", "views": 2000, "failure": "did not finish"})  # failed runs are left out
     rows.insert(0, {**rows[0], "extract_s": 99.0})  # an earlier run at 56 views: the later one counts
@@ -60,6 +61,7 @@ def test_growth_exponents_are_the_log_log_slopes():
     for e in g:
         assert e["pairs_exponent"] == e["extract_s_exponent"] == 1.0
         assert e["match_s_exponent"] == 2.0 and e["map_s_exponent"] == 1.5
+        assert (e["extract_cpu_s_exponent"], e["match_cpu_s_exponent"], e["map_cpu_s_exponent"]) == (1.0, 2.0, 1.5)
         assert 1.0 < e["poses_wall_s_exponent"] < 2.0
     assert g[0]["extract_s_per_view"] == [0.5, 0.5]
     assert g[1]["match_s_per_view"] == [2.24, 10.0]
