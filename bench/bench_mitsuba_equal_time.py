@@ -22,7 +22,12 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   once and timed: ``lumigraph reference cornell --views scene --size 128 128 --spp N`` (a fresh
   process: imports, scene, BVH, kernels from numba's cache, EXR writing) against a fresh Python
   process that imports mitsuba, loads the same scene and renders (``llvm_ad_rgb`` where libLLVM
-  19+ is found, else ``scalar_rgb``). Ratio ours / Mitsuba's RMSE per sampler; goal <= 1.0.
+  19+ is found, else ``scalar_rgb``). Ratio ours / Mitsuba's RMSE per sampler; goal <= 1.0. Each
+  budget runs REPEATS (``--repeats K``) interleaved rounds (every contestant once per round, a
+  fresh seed per round, the load average recorded per round): each run kept, and the medians of
+  RMSE, wall time and per-round ratios reported; from the second round on each contestant's spp
+  is rescaled by its own previous wall time (closed loop: a calibration minutes old, under
+  another load, is not equal time).
 * ``embree``: rays/s of bare Embree (embreex through render.accel's compiled path) on the same
   scene (camera rays, then cosine-distributed bounce rays from the first hits) against our
   rays/s and paths/s at 256 spp in the same process.
@@ -40,6 +45,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -56,6 +62,8 @@ REF_SPP = 2048
 REF_DEPTH = 64
 SPP_VARIANTS = 64
 BUDGETS_S = (5.0, 30.0)
+#: interleaved repeats of every equal-time contestant per budget (medians reported)
+REPEATS = 3
 #: `lumigraph --help` on a quiet machine (bench/bench_startup.py, issue 16): budgets are scaled by
 #: the measured help time over it, so that on a shared machine each contestant still gets the
 #: quiet machine's 5 s / 30 s split between fixed cost and samples (--budgets overrides)
@@ -158,6 +166,12 @@ def _spp_for(budget: float, calib: list[tuple[int, float]]) -> int:
     return max(1, int((budget - a) / b))
 
 
+def _fixed_cost(calib: list[tuple[int, float]]) -> float:
+    """a of the two-point fit t = a + b spp (at least 0)."""
+    (n0, t0), (n1, t1) = calib
+    return max(0.0, t0 - (t1 - t0) / (n1 - n0) * n0)
+
+
 def _reference(scene, cam, ref_spp: int):
     from render.integrators import RenderSettings, prepare, render
 
@@ -231,6 +245,7 @@ def _embree(scene, ps, ours_rays_per_s: float, ours_paths_per_s: float, cam) -> 
 
 def main(argv: list[str]) -> None:
     quick = "--quick" in argv
+    repeats = int(argv[argv.index("--repeats") + 1]) if "--repeats" in argv else REPEATS
     ref_spp = 1024 if quick else REF_SPP
     help_s = sorted(_timed_help() for _ in range(3))[1]
     inflation = max(1.0, help_s / HELP_QUIET_S)
@@ -294,23 +309,58 @@ def main(argv: list[str]) -> None:
                         for s in ("independent", "multijitter")}
             equal["calibration_mitsuba"] = calib_mi
         rows = []
+        contestants = ["ours", "ours_blocks", "ours_blocks_depth64"]
         for budget in budgets:
-            row = {"budget_s": budget}
+            row = {"budget_s": budget, "repeats": []}
             n = _spp_for(budget, calib_ours)  # the two Sobol samplers cost the same per sample
-            for name, sampler, depth, spp in (("ours", "sobol", 8, n), ("ours_blocks", "sobol-blocks", 8, n),
-                                              ("ours_blocks_depth64", "sobol-blocks", 64, _spp_for(budget, calib_deep))):
-                img, wall, metrics = _run_ours(spp, 2, tmp, sampler, depth)
-                row[name] = {"sampler": sampler, "max_depth": depth, "spp": spp, "whole_process_s": round(wall, 3),
-                             **_rmse(img, ref_mean, noise),
-                             "paths_per_s": metrics.get("paths_per_s"), "rays_per_s": metrics.get("rays_per_s")}
+            plan = [(name, "ours", sampler, depth, spp) for name, sampler, depth, spp in (
+                ("ours", "sobol", 8, n), ("ours_blocks", "sobol-blocks", 8, n),
+                ("ours_blocks_depth64", "sobol-blocks", 64, _spp_for(budget, calib_deep)))]
             if mi is not None:
-                for sampler in ("independent", "multijitter"):
-                    m = _spp_for(budget, calib_mi[sampler])
-                    img, wall = _run_mitsuba(json_unlimited, sampler, m, 2, tmp)
-                    row[f"mitsuba_{sampler}"] = {"spp": m, "whole_process_s": round(wall, 3), **_rmse(img, ref_mean, noise)}
-                    for name in ("ours", "ours_blocks", "ours_blocks_depth64"):
-                        row[f"ratio_{name}_to_mitsuba_{sampler}"] = (row[name]["rmse_truth_est"]
-                                                                     / max(row[f"mitsuba_{sampler}"]["rmse_truth_est"], 1e-30))
+                plan += [(f"mitsuba_{s}", "mitsuba", s, None, _spp_for(budget, calib_mi[s])) for s in ("independent", "multijitter")]
+            # interleaved: every repeat runs each contestant once, in turn, under a fresh seed, so a
+            # load swing hits all of them; the row keeps each run and the medians. Closed loop: a
+            # contestant's spp for the next repeat is rescaled by its own measured wall time
+            # (spp (budget - a) / (wall - a), a its calibrated fixed cost), since a calibration
+            # made minutes earlier under another load gave one contestant twice the time of
+            # another (measured: ours 60 s against Mitsuba's 31 s at a 31 s budget)
+            fixed = {"ours": _fixed_cost(calib_ours), "ours_blocks": _fixed_cost(calib_ours),
+                     "ours_blocks_depth64": _fixed_cost(calib_deep)}
+            if mi is not None:
+                fixed.update({f"mitsuba_{s}": _fixed_cost(calib_mi[s]) for s in ("independent", "multijitter")})
+            for k in range(repeats):
+                rep = {"seed": 2 + k, "load_average": os.getloadavg()}
+                if k > 0:
+                    last = row["repeats"][-1]
+                    plan = [(name, kind, sampler, depth,
+                             max(1, int(last[name]["spp"] * max(budget - fixed[name], 0.1)
+                                        / max(last[name]["whole_process_s"] - fixed[name], 0.1))))
+                            for name, kind, sampler, depth, _ in plan]
+                for name, kind, sampler, depth, spp in plan:
+                    if kind == "ours":
+                        img, wall, metrics = _run_ours(spp, 2 + k, tmp, sampler, depth)
+                        rep[name] = {"sampler": sampler, "max_depth": depth, "spp": spp, "whole_process_s": round(wall, 3),
+                                     **_rmse(img, ref_mean, noise),
+                                     "paths_per_s": metrics.get("paths_per_s"), "rays_per_s": metrics.get("rays_per_s")}
+                    else:
+                        img, wall = _run_mitsuba(json_unlimited, sampler, spp, 2 + k, tmp)
+                        rep[name] = {"spp": spp, "whole_process_s": round(wall, 3), **_rmse(img, ref_mean, noise)}
+                if mi is not None:
+                    for sampler in ("independent", "multijitter"):
+                        for name in contestants:
+                            rep[f"ratio_{name}_to_mitsuba_{sampler}"] = (
+                                rep[name]["rmse_truth_est"] / max(rep[f"mitsuba_{sampler}"]["rmse_truth_est"], 1e-30))
+                row["repeats"].append(rep)
+            reps = row["repeats"]
+            for name, *_ in plan:
+                row[name] = {"spp": [r[name]["spp"] for r in reps],
+                             "median_whole_process_s": statistics.median(r[name]["whole_process_s"] for r in reps),
+                             "median_rmse_truth_est": statistics.median(r[name]["rmse_truth_est"] for r in reps)}
+            if mi is not None:
+                for key in [k for k in reps[0] if k.startswith("ratio_")]:
+                    row[key] = {"median": statistics.median(r[key] for r in reps), "per_repeat": [r[key] for r in reps],
+                                "ratio_of_medians": (row[key.split("_to_")[0][len("ratio_"):]]["median_rmse_truth_est"]
+                                                     / max(row["mitsuba_" + key.rsplit("_to_mitsuba_", 1)[1]]["median_rmse_truth_est"], 1e-30))}
             rows.append(row)
         equal["rows"] = rows
         figures["equal_time"] = equal
