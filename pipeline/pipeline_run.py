@@ -32,12 +32,14 @@ def warm_reference_kernels(rig: RigScene) -> subprocess.Popen | None:
 
     from .warm_kernels import MARKER, WARM_RENDERS
 
+    folder = kernel_cache_dir()
+    if (folder / MARKER).is_file():
+        return None  # every integrator warm (`make setup`): no need to prepare the scene to choose
     try:
         name = integrators.prepare(rig.scene).choose(frozenset(scene_effects(rig.scene)), "auto")
     except ValueError:
         return None  # the reference stage refuses this scene itself, with its own message
-    folder = kernel_cache_dir()
-    if name not in {i for _, i in WARM_RENDERS} or (folder / MARKER).is_file() or (folder / f"{MARKER}.{name}").is_file():
+    if name not in {i for _, i in WARM_RENDERS} or (folder / f"{MARKER}.{name}").is_file():
         return None
     return subprocess.Popen([sys.executable, "-m", "pipeline.warm_kernels", "--only", name],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

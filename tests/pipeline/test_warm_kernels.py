@@ -73,3 +73,6 @@ def test_lumigraph_run_compiles_the_reference_kernels_beside_the_capture(tmp_pat
         folder.mkdir(exist_ok=True)
         (folder / f"{MARKER}.{chosen}").write_text(f"{chosen} 1.0\n")
         assert warm_reference_kernels(rig) is None
+    (folder / f"{MARKER}.volpath").unlink()
+    (folder / MARKER).write_text("all 1.0\n")  # `make setup`'s marker: every integrator warm
+    assert warm_reference_kernels(rig) is None
