@@ -82,10 +82,11 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
-              sampler: Optional[str] = typer.Option(None, help="path/direct random numbers: sobol (Owen-scrambled "
-                                                               "Sobol, the default where the integrator reads it) | "
-                                                               "sobol-blocks (one sequence per pixel: lower error, "
-                                                               "a conservative variance image) | independent"),
+              sampler: Optional[str] = typer.Option(None, help="path/direct random numbers: sobol-blocks (one "
+                                                               "Owen-scrambled Sobol sequence per pixel, variance "
+                                                               "from its blocks by a fitted power law; the default "
+                                                               "where the integrator reads it) | sobol (independent "
+                                                               "replicates: noisier, model-free variance) | independent"),
               out: Optional[Path] = typer.Option(None, help="folder (default artifacts/<scene>/reference)"),
               root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
               scheduler: Optional[str] = SCHEDULER,

@@ -45,9 +45,11 @@ each block is itself a net. The blocks are not independent: the estimator is the
 the mean of R independent B-point nets (the "sobol" sampler's estimate at this spp), which
 exceeds the actual variance of the whole sequence's mean whenever the blocks are negatively
 correlated, as the points of a scrambled net are (measured: bench/bench_sampler.py,
-tests/render/test_sobol.py). So the mean is as good as one net's and the variance image is an
-upper bound in expectation, not an unbiased estimate: per-pixel tests against it are
-conservative, and subtracting it as a reference's noise over-corrects.
+tests/render/test_sobol.py). So the film does not report that spread: it fits the rate of the
+last two halvings (halves against quarters, pooled over a window) and extrapolates to the whole
+sequence (:func:`render.film.blocks_variance`, a model calibrated against the spread over seeds).
+This is the default sampler of path and direct: a mean as good as one net's, a variance image
+within about 0.75-1.1x of the actual (slightly conservative on the Cornell box).
 
 Why "sobol" is noisier than "sobol-blocks" (issue 16, measured): only the split into replicates.
 Cornell 128x128, path, 3 seeds (one-off run, load 1-5): "sobol" at 64 spp (R = 4 nets of 16

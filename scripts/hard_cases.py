@@ -50,6 +50,8 @@ CATALOGUE: tuple[HardCase, ...] = (
     HardCase("render/integrators/path.py", "point light on the surface", HC + "test_point_light_on_the_surface"),
     HardCase("render/integrators/path.py", "absent light", HCI + "test_hard_case_absent_light[path]"),
     HardCase("render/integrators/path.py", "zero-area light", HCI + "test_hard_case_zero_area_light[path]"),
+    HardCase("render/film.py", "blocks variance model without spread or beyond the fitted rate",
+             "tests/render/test_sobol.py::test_hard_case_blocks_variance_without_spread_or_beyond_the_fitted_rate"),
     # ---- volpath
     HardCase("render/integrators/volpath.py", "absent light", HCI + "test_hard_case_absent_light[volpath]"),
     HardCase("render/integrators/volpath.py", "zero-area light", HCI + "test_hard_case_zero_area_light[volpath]"),

@@ -181,8 +181,9 @@ class ReferenceConfig:
     seed: int = 0
     #: maximum bounces
     max_depth: int = 8
-    #: random numbers of path / direct: "sobol" or "independent" (render.sobol); None: sobol
-    #: where the chosen integrator reads a sampler; given explicitly to one that does not: refused
+    #: random numbers of path / direct: "sobol-blocks", "sobol" or "independent" (render.sobol);
+    #: None: sobol-blocks where the chosen integrator reads a sampler; given explicitly to one
+    #: that does not: refused
     sampler: str | None = None
 
 
@@ -224,7 +225,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     settings = replace(settings, integrator=chosen_integrator)
     reads_sampler = "sampler" in {f.name for f in fields(integrators.INTEGRATOR_OPTIONS[chosen_integrator])}
     if config.sampler is None and reads_sampler:
-        settings = replace(settings, sampler="sobol")  # the stage's default: low-discrepancy where it applies
+        settings = replace(settings, sampler="sobol-blocks")  # the stage's default: low-discrepancy where it applies
     try:  # an option the chosen integrator does not read is refused here, before any work
         options = settings.options(chosen_integrator, integrators.INTEGRATOR_OPTIONS[chosen_integrator])
     except ValueError as exc:

@@ -31,9 +31,10 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
-    #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
-    #: variance, render.sobol; the default)
-    sampler: str = "sobol"
+    #: random numbers: "sobol-blocks" (one Owen-scrambled Sobol sequence per pixel, model
+    #: variance: render.film.blocks_variance; the default), "sobol" (R interleaved replicates,
+    #: model-free variance) or "independent" (hash)
+    sampler: str = "sobol-blocks"
 
     def __post_init__(self):
         check_strategy(self.strategy)

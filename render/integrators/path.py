@@ -37,13 +37,14 @@ the listed effects and nothing more.
 
 Random numbers are a pure function of (seed, pixel, sample index, dimension), so renders of
 disjoint sample ranges merge exactly (:func:`render.film.merge_results`): Owen-scrambled Sobol
-points (``sampler="sobol"``, the default, :mod:`render.sobol`; sample s of a pixel is point s div
-R of its replicate s mod R, R = render.sobol.replicates_for(spp) (4, 8 or 16), and the variance
-image comes from the R replicate means, :meth:`render.film.Film.variance`: R - 1 degrees of
-freedom per pixel, so per-pixel tests against it use Student-t thresholds), the same points
-from one sequence per pixel (``sampler="sobol-blocks"``: sample s is point s, so a render is one
-net rather than R; the variance image, from R consecutive blocks, is conservative: render.sobol),
-or an independent hash per dimension (``sampler="independent"``, :mod:`render.sampling`; the variance image is the
+points from one sequence per pixel (``sampler="sobol-blocks"``, the default, :mod:`render.sobol`:
+sample s is point s, so a render is one net; the variance image comes from R =
+render.sobol.replicates_for(spp) (4, 8 or 16) consecutive blocks under a fitted power law of the
+net size, :func:`render.film.blocks_variance`), the same points split into R interleaved
+independent replicates (``sampler="sobol"``: sample s of a pixel is point s div R of its
+replicate s mod R; R nets of n / R points, noisier, but the variance image from the R replicate
+means is unbiased without a model, :meth:`render.film.Film.variance`: R - 1 degrees of freedom
+per pixel, so per-pixel tests against it use Student-t thresholds), or an independent hash per dimension (``sampler="independent"``, :mod:`render.sampling`; the variance image is the
 sample variance over n).
 """
 from __future__ import annotations
@@ -83,9 +84,10 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
-    #: random numbers: "independent" (hash) or "sobol" (Owen-scrambled Sobol with replicate
-    #: variance, render.sobol; the default)
-    sampler: str = "sobol"
+    #: random numbers: "sobol-blocks" (one Owen-scrambled Sobol sequence per pixel, model
+    #: variance: render.film.blocks_variance; the default), "sobol" (R interleaved replicates,
+    #: model-free variance) or "independent" (hash)
+    sampler: str = "sobol-blocks"
 
     def __post_init__(self):
         check_strategy(self.strategy)
@@ -238,6 +240,7 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     if cfg.sampler == SAMPLER_SOBOL:
         film.r1 = np.zeros((replicates, npix, 3))
         film.rn = np.bincount(replicate_of(np.arange(a, b), replicates, block), minlength=replicates).astype(np.int64)
+        film.blocks = block > 0  # blocks of one sequence: the model variance (render.film.blocks_variance)
     rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:

@@ -71,9 +71,9 @@ class RenderSettings:
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth (path,
     volpath, bdpt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
-    sampler: "sobol" (Owen-scrambled Sobol with replicate variance, render.sobol; their default),
-    "sobol-blocks" (one Sobol sequence per pixel, variance from its blocks: a conservative
-    estimate) or "independent" (direct, path).
+    sampler: "sobol-blocks" (one Owen-scrambled Sobol sequence per pixel, variance from its blocks
+    under a fitted power law, render.film.blocks_variance; their default), "sobol" (R interleaved
+    independent replicates: noisier, model-free variance) or "independent" (direct, path).
     """
 
     integrator: str = "auto"

@@ -21,17 +21,17 @@ def _reference(out, *extra):
 
 def test_sampler_is_recorded_and_changes_the_render(tmp_path):
     runs = {}
-    for sampler in (None, "independent", "sobol-blocks"):
+    for sampler in (None, "independent", "sobol"):
         out = tmp_path / (sampler or "default") / "reference"
         proc = _reference(out, *(["--sampler", sampler] if sampler else []))
         assert proc.returncode == 0, proc.stderr
         manifest = json.loads((out / "manifest.json").read_text())
-        assert manifest["params"]["sampler"] == (sampler or "sobol")
+        assert manifest["params"]["sampler"] == (sampler or "sobol-blocks")
         # the variance image's degrees of freedom (validate's thresholds): none for independent
         assert manifest["params"]["replicates"] == (None if sampler == "independent" else 4)
         runs[sampler] = read_exr(next((out / "linear").glob("*.exr")))
     assert np.all(np.isfinite(runs[None])) and not np.array_equal(runs[None], runs["independent"])
-    assert np.all(np.isfinite(runs["sobol-blocks"])) and not np.array_equal(runs[None], runs["sobol-blocks"])
+    assert np.all(np.isfinite(runs["sobol"])) and not np.array_equal(runs[None], runs["sobol"])
 
 
 @pytest.mark.parametrize("extra,names", [(["--sampler", "halton"], ["--sampler", "halton"]),

@@ -223,14 +223,16 @@ def test_blocks_sampler_is_one_net_per_pixel_and_merges_exactly():
     assert merged.variance.tobytes() == whole.variance.tobytes()
 
 
-def test_blocks_sampler_error_is_one_nets_and_its_variance_image_conservative():
+def test_blocks_sampler_error_is_one_nets_and_its_variance_image_calibrated():
     """On the smooth direct-light integrand at 256 spp (256 independent pixels against the closed
     form), one sequence per pixel ("sobol-blocks") against 16 interleaved replicates ("sobol"):
     RMSE ratio 0.096 when written (asserted < 0.3: on so smooth an integrand one net of 256 points
-    beats 16 independent nets of 16 by far more than the R^(1/4) of an n^(-3/4) error); its
-    variance image, from 16 blocks of 16, overstates the actual squared error (mean err^2 / mean
-    variance 0.008 when written, 1.06 under "sobol"; asserted in (0.001, 0.5): an upper bound,
-    the documented price of one sequence per pixel, render.sobol)."""
+    beats 16 independent nets of 16 by far more than the R^(1/4) of an n^(-3/4) error). Its
+    variance image (render.film.blocks_variance: the rate of the last two halvings, extrapolated)
+    against the actual squared error: mean err^2 / mean variance 0.96 over seeds 0-2 when
+    written (one seed here; err^2 over 256 pixels has ~9% relative noise), asserted in
+    [0.4, 2.5]; the blocks' spread alone (the estimator before) gives 0.01 and fails; the
+    replicates' ("sobol") 1.06."""
     sc, cam, truth = _area_light_probe(16)
     ps = prepare(sc)
     out = {}
@@ -241,4 +243,50 @@ def test_blocks_sampler_error_is_one_nets_and_its_variance_image_conservative():
         out[sampler] = (np.sqrt(err2.mean()), err2.mean() / r.variance[..., 0].astype(np.float64).mean())
     ratio = out["sobol-blocks"][0] / out["sobol"][0]
     assert ratio < 0.3, f"RMSE sobol-blocks / sobol {ratio:.3f} ({out})"
-    assert 0.001 < out["sobol-blocks"][1] < 0.5, f"{out} mean err^2 / mean variance image {out['sobol-blocks'][1]:.3f}"
+    assert 0.4 <= out["sobol-blocks"][1] <= 2.5, f"{out} mean err^2 / mean variance image {out['sobol-blocks'][1]:.3f}"
+
+
+def test_blocks_variance_matches_the_spread_over_seeds_on_the_cornell_box():
+    """The default sampler's variance image against the actual variance of the mean, on the
+    Cornell box (128 x 128, path, 64 spp: R = 4 blocks of 16): over seeds 200-203 the mean over
+    pixels and channels of the per-pixel sample variance of the 4 means, divided by the mean
+    variance image. 0.65 here and 0.68-0.88 for the three other sets of 4 seeds when written
+    (16 seeds: 0.82; at 256 spp 0.68-0.75): slightly conservative. Asserted in [0.5, 1.25]
+    (about 3 sigma of the sets' spread either side); the blocks' spread alone (s^2 / R, the
+    estimator before) gives 0.37 and fails."""
+    from pipeline.stages.reference import resize_camera
+    from rig.build import load_scene
+
+    rig = load_scene("cornell")
+    cam = resize_camera(rig.cameras["scene"][0], 128, 128)
+    ps = prepare(rig.scene)
+    runs = [render(rig.scene, cam, RenderSettings(integrator="path", spp=64, seed=s), prepared=ps) for s in range(200, 204)]
+    assert all(r.film.blocks and r.film.r1.shape[0] == 4 for r in runs)  # the default: blocks of one sequence
+    means = np.stack([r.mean.astype(np.float64) for r in runs])
+    est = np.stack([r.variance.astype(np.float64) for r in runs])
+    assert np.all(np.isfinite(est)) and est.min() >= 0
+    ratio = means.var(0, ddof=1).mean() / est.mean()
+    assert 0.5 <= ratio <= 1.25, f"empirical / estimated variance {ratio:.3f}"
+
+
+def test_hard_case_blocks_variance_without_spread_or_beyond_the_fitted_rate():
+    """Hard case: the blocks' variance model (render.film.blocks_variance) where its ratios are
+    undefined or out of range: all blocks equal (no spread anywhere: 0, not NaN), a black region
+    beside a lit one, halves that agree exactly while quarters differ (D_4 / D_2 infinite: t
+    clipped to T_MAX and V from the quarters, finite and > 0), and fewer than 4 or a non power
+    of two blocks refused."""
+    from render.film import T_MAX, blocks_variance
+
+    assert np.array_equal(blocks_variance(np.ones((8, 6, 3)), 3, 2), np.zeros((6, 3)))
+    rng = np.random.default_rng(4)
+    m = np.zeros((4, 40 * 20, 3))
+    m[:, :400] = rng.exponential(size=(4, 400, 3))  # top half lit, bottom half black
+    v = blocks_variance(m, 40, 20)
+    assert np.all(np.isfinite(v)) and np.all(v[400:] == 0) and v[:400].min() > 0
+    q = np.array([1.0, -1.0, -1.0, 1.0])[:, None, None] * np.ones((4, 4, 3))  # halves both 0: D_2 = 0
+    v = blocks_variance(q, 2, 2)
+    d4 = 3.0 / 4.0 * q.var(0, ddof=1)
+    assert np.allclose(v, d4 / (T_MAX ** 2 - 1.0)) and v.min() > 0
+    for r in (2, 6):
+        with pytest.raises(ValueError, match="power of two"):
+            blocks_variance(np.ones((r, 4, 3)), 2, 2)
