@@ -58,6 +58,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+
+from recon.nerf.omp import passive_omp_wait
+
+# before torch loads OpenMP: idle intra-op threads sleep rather than spin (recon/nerf/omp.py: ~6x
+# the training steps on 2 loaded cores)
+OMP_WAIT_POLICY = passive_omp_wait()
 # torch.optim's first optimizer imports torch._dynamo (3 s on idle cores, 25 s on loaded ones):
 # imported with the stage, so it is start-up, not time taken out of the --minutes budget's work
 import torch._dynamo  # noqa: F401
@@ -304,6 +310,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
             "scale": f"{eval_w}x{eval_h} (capture {full.width}x{full.height} / {downsample * k}, area-averaged)",
             "reference": data.reference, "poses": data.poses, "views": rows, "steps": result.steps, "train_s": round(result.train_s, 3),
             "curve_final_display_psnr": curve[-1]["display_psnr"] if curve else None,
+            "torch_threads": cfg.threads, "omp_wait_policy": OMP_WAIT_POLICY,
         }
         if full_res:
             for k_ in ("display_psnr", "display_ssim", "linear_psnr"):

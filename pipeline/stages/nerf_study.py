@@ -16,6 +16,10 @@ import argparse
 import json
 from pathlib import Path
 
+from recon.nerf.omp import passive_omp_wait
+
+passive_omp_wait()  # before torch loads OpenMP (recon/nerf/omp.py)
+
 from recon.nerf.study import CURVES_COLUMNS, PUBLIC_REFERENCE, NerfStudy, parse_run, parse_settings, run_study
 
 from ..artifacts import write_json
