@@ -33,8 +33,9 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   rays/s and paths/s at 256 spp in the same process.
 
 Ours runs under both Sobol samplers at equal time: ``sobol`` (R interleaved independent replicates,
-an unbiased variance image) and ``sobol-blocks`` (one sequence per pixel, a conservative variance
-image: render.sobol), each ratio against Mitsuba's samplers reported.
+an unbiased variance image) and ``sobol-blocks`` (one sequence per pixel, the default of path and
+direct since issue 16's session 30; its variance image is render.film.blocks_variance's model),
+each ratio against Mitsuba's samplers reported.
 
 Run: ``.venv/bin/python -m bench.bench_mitsuba_equal_time`` (``--quick``: a shorter reference and
 a 5 s budget only; ``--reference FILE.npz``: reuse a saved reference (arrays mean, var; the run
@@ -177,7 +178,10 @@ def _reference(scene, cam, ref_spp: int):
 
     ps = prepare(scene)
     t0 = time.perf_counter()
-    ref = render(scene, cam, RenderSettings(integrator="path", spp=ref_spp, max_depth=REF_DEPTH, seed=1000), prepared=ps)
+    # the replicates' sampler: its variance image is unbiased without a model (the default's
+    # is render.film.blocks_variance's model), and that variance is subtracted as the reference's noise
+    ref = render(scene, cam, RenderSettings(integrator="path", spp=ref_spp, max_depth=REF_DEPTH, seed=1000,
+                                            sampler="sobol"), prepared=ps)
     return ps, ref, time.perf_counter() - t0
 
 
@@ -185,14 +189,14 @@ def _variants(scene, cam, ps, ref_mean, noise, spp: int) -> dict:
     from render.integrators import RenderSettings, render
 
     variants = {
-        "ours_default (rr from vertex 3, depth 8, power MIS, sobol)": {},
+        "ours_default (rr from vertex 3, depth 8, power MIS, sobol-blocks)": {},
         "rr_depth 5": {"rr_depth": 5},
         "roulette off": {"roulette": False},
         "max_depth 64 (unlimited)": {"max_depth": 64},
         "rr_depth 5, max_depth 64 (Mitsuba's policy)": {"rr_depth": 5, "max_depth": 64},
         "balance heuristic": {"heuristic": "balance"},
         "independent sampler": {"sampler": "independent"},
-        "sobol-blocks sampler (one sequence per pixel)": {"sampler": "sobol-blocks"},
+        "sobol sampler (R interleaved replicates)": {"sampler": "sobol"},
     }
     out = {}
     for name, kw in variants.items():
