@@ -19,6 +19,9 @@ Every written camera is in the ground-truth world frame, so later stages use it 
 views_total / views_registered / registered_fraction / unregistered (names),
 rotation_error_deg_{mean,median,max}, center_error_rel_{mean,max} (divided by scene_scale, the
 median distance of the true camera centres from their centroid), alignment_scale, worst_view,
+sequence_rotation_bias (with a capture order: per sequence the mean error rotation in the camera's
+axes, :func:`recon.poses.align.sequence_rotation_bias`) and sequence_pitch_spread_deg (the largest
+minus the smallest of those pitches over sequences of more than one view),
 reprojection_error_px, focal_rel / principal_point_px / distortion_abs_max (intrinsics error),
 self_check_folded / self_check_reason / max_azimuth_gap_deg / duplicate_pairs (no ground truth
 used), projection_error_px_{max,view_max_mean,mean} and lens_projection_error_px_{max,mean} (the
@@ -78,7 +81,7 @@ import numpy as np
 
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, ViewOrder,
                          estimate_charuco, intrinsics_error, projection_error, score_cameras,
-                         turntable_self_check)
+                         sequence_rotation_bias, turntable_self_check)
 from recon.poses.charuco import calibrate_sequence, make_board
 from recon.poses.colmap import resolve_first_octave
 from recon.poses.colmap_process import estimate_colmap_stoppable
@@ -452,6 +455,11 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
     except ValueError as exc:  # degenerate centres (e.g. all registered views at one pose)
         raise PoseFailure(f"cannot align the estimate to the ground truth: {exc}", metrics) from None
     metrics.update(m)
+    if cap.order is not None:  # the error each sequence's views share (issue 21: a ring-wide pitch)
+        bias = sequence_rotation_bias(scored, truth, {v.name: v.sequence for v in cap.order})
+        metrics["sequence_rotation_bias"] = bias
+        pitches = [b["pitch_deg"] for b in bias if b["views"] > 1]
+        metrics["sequence_pitch_spread_deg"] = float(max(pitches) - min(pitches)) if pitches else 0.0
     metrics.update(intrinsics_error(scored[0], truth[scored[0].name]))
     metrics.update(projection_error(scored, truth, radius_rel=metrics.get("observed_radius_rel")))
     check = turntable_self_check(scored, gates.max_azimuth_gap_deg)

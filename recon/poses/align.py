@@ -20,7 +20,7 @@ from render.camera import Camera
 
 __all__ = ["Similarity", "umeyama", "apply_similarity", "rotation_angles_deg", "scene_scale",
            "score_cameras", "intrinsics_error", "projection_error", "pixel_grid", "subject_point",
-           "turntable_self_check"]
+           "turntable_self_check", "sequence_rotation_bias"]
 
 
 @dataclass(frozen=True)
@@ -210,6 +210,44 @@ def score_cameras(estimated: Sequence[Camera], truth: Mapping[str, Camera], alig
                "center_error_rel_max": float(cen.max()), "alignment_scale": float(sim.scale),
                "scene_scale": scale, "worst_view": est[worst].name}
     return est, metrics, sim
+
+
+def sequence_rotation_bias(estimated: Sequence[Camera], truth: Mapping[str, Camera],
+                           sequence_of: Mapping[str, str]) -> list[dict]:
+    """The rotation error every view of a sequence shares, in the camera's own axes.
+
+    For each view the error rotation ``R_true^T R_est`` (camera-to-world rotations, so the error
+    acts in the camera frame) is turned into a rotation vector; its mean over a sequence's views
+    is that sequence's common error: ``pitch_deg`` about the camera's x (right) axis (positive
+    turns the optical axis towards the camera's up, -y in OpenCV axes), ``yaw_deg`` about y (down),
+    ``roll_deg`` about z (forward); ``scatter_deg`` is the per-axis standard deviation around it
+    (the views' own error). A ring shifted as a whole shows as a mean far above
+    ``scatter / sqrt(views)``; a world-frame mean would cancel around a ring (the camera axes
+    turn with the azimuth), hence the camera frame.
+
+    estimated: cameras already in the ground-truth frame (e.g. :func:`score_cameras`'s output);
+    truth: name -> Camera; sequence_of: name -> sequence id (views without one are skipped).
+    Returns one dict per sequence, sorted by id: ``sequence``, ``views``, ``pitch_deg``,
+    ``yaw_deg``, ``roll_deg``, ``scatter_deg`` ([x, y, z]); finite floats.
+    """
+    groups: dict[str, list[np.ndarray]] = {}
+    for c in estimated:
+        seq = sequence_of.get(c.name)
+        if seq is None or c.name not in truth:
+            continue
+        D = truth[c.name].cam_to_world[:3, :3].T @ c.cam_to_world[:3, :3]
+        # rotation vector of D: axis * angle, the angle by atan2 (accurate for tiny angles)
+        w = 0.5 * np.array([D[2, 1] - D[1, 2], D[0, 2] - D[2, 0], D[1, 0] - D[0, 1]])
+        sin, cos = float(np.linalg.norm(w)), (float(np.trace(D)) - 1.0) / 2.0
+        angle = np.arctan2(sin, cos)
+        groups.setdefault(seq, []).append(w * (angle / sin) if sin > 1e-15 else w)
+    out = []
+    for seq in sorted(groups):
+        v = np.degrees(np.array(groups[seq]))
+        mean = v.mean(0)
+        out.append({"sequence": seq, "views": len(v), "pitch_deg": float(mean[0]), "yaw_deg": float(mean[1]),
+                    "roll_deg": float(mean[2]), "scatter_deg": [float(x) for x in v.std(0)]})
+    return out
 
 
 def turntable_self_check(cameras: Sequence[Camera], max_gap_deg: float = 90.0,

@@ -15,7 +15,7 @@ import pytest
 from pipeline.artifacts import BadInput, read_manifest
 from pipeline.stages.poses import PosesConfig, QualityGates, load_capture, run_poses
 from recon.poses import (CharucoConfig, ColmapConfig, Similarity, apply_similarity, estimate_charuco, make_board, rotation_angles_deg,
-                         score_cameras, turntable_self_check, umeyama)
+                         score_cameras, sequence_rotation_bias, turntable_self_check, umeyama)
 from render.camera import Camera, Intrinsics
 from render.camera_io import read_cameras_json, read_colmap_text, read_transforms_json
 from render.image_io import read_exr
@@ -138,6 +138,35 @@ def test_scores_vanish_after_a_similarity_and_catch_one_tilted_view():
     assert m["rotation_error_deg_max"] > 1.0
 
 
+def test_sequence_bias_recovers_a_ring_wide_pitch_in_camera_axes():
+    # two rings; every view of the low one turned by +0.02 deg about its own x axis (plus a
+    # per-view yaw alternating +-0.01, which must average out): the low ring's bias is exactly
+    # that pitch, the other ring's zero. In world axes the same pitch averages to ~0 round a ring.
+    low, high = ring(24, height=0.3), ring(24, height=0.7, offset_deg=7.5)
+    for i, c in enumerate(high):
+        high[i] = Camera(c.intrinsics, c.cam_to_world, f"h{i:03d}")
+    truth = {c.name: c for c in low + high}
+    est = []
+    for i, c in enumerate(low):
+        m = c.cam_to_world.copy()
+        m[:3, :3] = m[:3, :3] @ axis_angle([1, 0, 0], 0.02) @ axis_angle([0, 1, 0], 0.01 * (-1) ** i)
+        est.append(Camera(c.intrinsics, m, c.name))
+    est += high
+    seq = {**{c.name: "low" for c in low}, **{c.name: "high" for c in high}}
+    bias = {b["sequence"]: b for b in sequence_rotation_bias(est, truth, seq)}
+    assert [bias["low"]["views"], bias["high"]["views"]] == [24, 24]
+    assert bias["low"]["pitch_deg"] == pytest.approx(0.02, rel=1e-3)
+    assert abs(bias["low"]["yaw_deg"]) < 1e-6 and abs(bias["low"]["roll_deg"]) < 1e-6
+    assert bias["low"]["scatter_deg"][1] == pytest.approx(0.01, rel=1e-3)  # the alternating yaw
+    assert max(abs(bias["high"][k]) for k in ("pitch_deg", "yaw_deg", "roll_deg")) < 1e-9
+    # a positive pitch turns the optical axis towards the camera's up (-y)
+    c = low[0]
+    z_est = est[0].cam_to_world[:3, 2]
+    assert z_est @ (-c.cam_to_world[:3, 1]) > 0
+    # views without a sequence are left out
+    assert [b["sequence"] for b in sequence_rotation_bias(est, truth, {"v000": "low"})] == ["low"]
+
+
 def test_self_check_passes_an_orbit_and_flags_a_fold():
     cams = ring(24) + ring(24, 0.7, 0.8, 7.5)
     ok = turntable_self_check(cams)
@@ -243,6 +272,11 @@ def test_gt_method_reproduces_the_capture(stage_runs, small_capture):
     np.testing.assert_array_equal([c.cam_to_world for c in cams], [c.cam_to_world for c in truth])
     m = json.loads((out / "metrics.json").read_text())
     assert m["rotation_error_deg_max"] == 0 and m["registered_fraction"] == 1.0
+    # one bias entry per sequence of the capture's shooting order, all views counted, all zero
+    order = json.loads((small_capture / "capture_order.json").read_text())["views"]
+    assert [b["sequence"] for b in m["sequence_rotation_bias"]] == sorted({v["sequence"] for v in order})
+    assert sum(b["views"] for b in m["sequence_rotation_bias"]) == len(truth)
+    assert m["sequence_pitch_spread_deg"] == 0.0
 
 
 def test_colmap_registers_every_view_in_the_ground_truth_frame(stage_runs, small_capture):
@@ -257,6 +291,13 @@ def test_colmap_registers_every_view_in_the_ground_truth_frame(stage_runs, small
     d = np.linalg.norm([a.center - b.center for a, b in zip(cams, truth)], axis=1)
     assert d.max() < 0.02 * m["scene_scale"]
     assert (out / "sparse" / "points3D.bin").is_file() and manifest["params"]["colmap"]["known_intrinsics"]
+    # a sequence's common error cannot exceed its views' largest error
+    bias = m["sequence_rotation_bias"]
+    assert sum(b["views"] for b in bias) == len(truth)
+    assert all(np.linalg.norm([b["pitch_deg"], b["yaw_deg"], b["roll_deg"]]) <= m["rotation_error_deg_max"] + 1e-9
+               for b in bias)
+    pitches = [b["pitch_deg"] for b in bias if b["views"] > 1]
+    assert m["sequence_pitch_spread_deg"] == pytest.approx(max(pitches) - min(pitches))
 
 
 def test_colmap_does_not_depend_on_thread_scheduling(stage_runs, small_capture, tmp_path):
