@@ -487,6 +487,28 @@ class FastNeRF(_Boxed):
         return dist
 
     @torch.no_grad()
+    def march_inputs(self, o: torch.Tensor, d: torch.Tensor) -> tuple:
+        """The positional arguments of :func:`recon.nerf.march_kernels.march` for rays o, d (R, 3)
+        up to ``min_weight`` (``COLOUR_MIN_WEIGHT``): rays start at the occupied cells' bounding
+        box (the sample grid anchored at the scene box's entry), the occupancy grid and its skip
+        distances (everything occupied before the grid is active), the dense density features."""
+        step = self.step
+        t0, t1 = ray_aabb(o, d, self.lo, self.hi)            # the sample grid is anchored at the box entry
+        olo, ohi = self.occupied_box()
+        s0, s1 = ray_aabb(o, d, olo, ohi)
+        s0, s1 = torch.maximum(s0, t0), torch.minimum(s1, t1)
+        s1 = torch.where(s1 > s0, s1, torch.zeros_like(s1))  # a ray that misses the occupied box: no sample
+        # first step index k with t0 + (k + 0.5) step >= s0: the occupied box's samples, none skipped
+        k_first = torch.clamp(torch.floor((s0 - t0) / step - 0.5), min=0).long()
+        self.prepare_inference()
+        occupied = self.occupancy if bool(self.occ_active) else torch.ones_like(self.occupancy)
+        skip = self.skip_distance() if bool(self.occ_active) else torch.zeros(occupied.shape, dtype=torch.int64)
+        cell_steps = float(((self.hi - self.lo) / self.cfg.occ_res).min()) / step
+        return (o.numpy(), d.numpy(), t0.numpy(), s1.numpy(), k_first.numpy(), step, self.lo.double().numpy(),
+                self.hi.double().numpy(), occupied.numpy(), skip.numpy(), cell_steps, self._dense_feat[0, 0].numpy(),
+                self.cfg.density_shift, self.cfg.density_scale * 2.0 / self.side, STOP_TRANSMITTANCE, COLOUR_MIN_WEIGHT)
+
+    @torch.no_grad()
     def render_inference(self, o: torch.Tensor, d: torch.Tensor, threads: int | None = None,
                          colour_weight: float = COLOUR_INFERENCE_WEIGHT) -> RenderOut:
         """Held-out rendering (no gradients): the same quadrature and samples as
@@ -508,23 +530,8 @@ class FastNeRF(_Boxed):
         from .march_kernels import march
 
         R = o.shape[0]
-        step = self.step
-        t0, t1 = ray_aabb(o, d, self.lo, self.hi)            # the sample grid is anchored at the box entry
-        olo, ohi = self.occupied_box()
-        s0, s1 = ray_aabb(o, d, olo, ohi)
-        s0, s1 = torch.maximum(s0, t0), torch.minimum(s1, t1)
-        s1 = torch.where(s1 > s0, s1, torch.zeros_like(s1))  # a ray that misses the occupied box: no sample
-        # first step index k with t0 + (k + 0.5) step >= s0: the occupied box's samples, none skipped
-        k_first = torch.clamp(torch.floor((s0 - t0) / step - 0.5), min=0).long()
-        self.prepare_inference()
-        occupied = self.occupancy if bool(self.occ_active) else torch.ones_like(self.occupancy)
-        skip = self.skip_distance() if bool(self.occ_active) else torch.zeros(occupied.shape, dtype=torch.int64)
-        cell_steps = float(((self.hi - self.lo) / self.cfg.occ_res).min()) / step
         opacity, wsum_t, count, sample_t, sample_w, evals = march(
-            o.numpy(), d.numpy(), t0.numpy(), s1.numpy(), k_first.numpy(), step, self.lo.double().numpy(),
-            self.hi.double().numpy(), occupied.numpy(), skip.numpy(), cell_steps, self._dense_feat[0, 0].numpy(),
-            self.cfg.density_shift, self.cfg.density_scale * 2.0 / self.side, STOP_TRANSMITTANCE, COLOUR_MIN_WEIGHT,
-            colour_weight, threads or torch.get_num_threads())
+            *self.march_inputs(o, d), colour_weight=colour_weight, threads=threads or torch.get_num_threads())
         count = torch.from_numpy(count)
         chosen = torch.arange(sample_t.shape[1])[None, :] < count[:, None]
         r_i, s_i = chosen.nonzero(as_tuple=True)

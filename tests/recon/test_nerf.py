@@ -235,6 +235,37 @@ def test_inference_render_equals_the_training_quadrature(trained_fast, tiny_data
     assert fast.n_points < every.n_points < ref.n_points
 
 
+def test_march_keeps_the_heavy_samples_and_the_heaviest_with_the_listed_weight(trained_fast, tiny_data):
+    """The march's colour samples against their definition, ray by ray: from every sample above
+    COLOUR_MIN_WEIGHT (colour_weight None lists them all, in order), the default keeps those above
+    COLOUR_INFERENCE_WEIGHT and each ray's heaviest, in order, their weights scaled to the listed
+    ones' sum. And room for one sample a ray (the rest marched again, those rays only) returns
+    what room for all does."""
+    from recon.nerf.march_kernels import march
+    from recon.nerf.models import COLOUR_INFERENCE_WEIGHT
+    m = trained_fast.model
+    o, d = camera_rays(tiny_data.test[0].camera)
+    args = m.march_inputs(o, d)
+    op_a, wt_a, n_a, t_a, w_a, ev_a = march(*args, colour_weight=None, threads=1)
+    got = march(*args, colour_weight=COLOUR_INFERENCE_WEIGHT, threads=2)
+    op, wt, n, t, w, ev = got
+    assert np.array_equal(op, op_a) and np.array_equal(wt, wt_a) and np.array_equal(ev, ev_a)
+    light_only = 0
+    for r in range(o.shape[0]):
+        tl, wl = t_a[r, :n_a[r]], w_a[r, :n_a[r]].astype(np.float64)
+        keep = (wl > COLOUR_INFERENCE_WEIGHT) | (wl == wl.max()) if n_a[r] else np.zeros(0, bool)
+        light_only += int(n_a[r] > 0 and not (wl > COLOUR_INFERENCE_WEIGHT).any())
+        assert n[r] == keep.sum()
+        assert np.array_equal(t[r, :n[r]], tl[keep])
+        np.testing.assert_allclose(w[r, :n[r]], wl[keep] * wl.sum() / wl[keep].sum(), rtol=1e-6)
+    assert light_only > 0 and n.max() >= 2  # both cases occur on the tiny scene
+    narrow = march(*args, colour_weight=COLOUR_INFERENCE_WEIGHT, threads=2, capacity=1)
+    for a, b in zip(got[:3] + got[5:], narrow[:3] + narrow[5:]):
+        assert np.array_equal(a, b)
+    for a, b in zip(got[3:5], narrow[3:5]):  # the samples, up to the columns past every count
+        assert np.array_equal(a[:, :b.shape[1]], b[:, :a.shape[1]])
+
+
 def test_skip_distance_is_the_chebyshev_distance_to_occupancy():
     """One occupied cell: every other cell's skip distance is its Chebyshev distance in cells to
     it, capped at SKIP_MAX_CELLS (closed form); occupied cells 0."""
