@@ -82,7 +82,7 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
               seed: int = typer.Option(0, help="render seed"),
               max_depth: int = typer.Option(8, help="maximum bounces"),
-              sampler: Optional[str] = typer.Option(None, help="path/direct random numbers: sobol-blocks (one "
+              sampler: Optional[str] = typer.Option(None, help="path/direct/volpath random numbers: sobol-blocks (one "
                                                                "Owen-scrambled Sobol sequence per pixel, variance "
                                                                "from its blocks by a fitted power law; the default "
                                                                "where the integrator reads it) | sobol (independent "

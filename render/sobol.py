@@ -48,7 +48,8 @@ correlated, as the points of a scrambled net are (measured: bench/bench_sampler.
 tests/render/test_sobol.py). So the film does not report that spread: it fits the rate of the
 last two halvings (halves against quarters, pooled over a window) and extrapolates to the whole
 sequence (:func:`render.film.blocks_variance`, a model calibrated against the spread over seeds).
-This is the default sampler of path and direct: a mean as good as one net's, a variance image
+This is the default sampler of path, direct and volpath (its dimension layout with media:
+render.integrators.volpath_kernels, "Random numbers"): a mean as good as one net's, a variance image
 within about 0.75-1.1x of the actual (slightly conservative on the Cornell box).
 
 Why "sobol" is noisier than "sobol-blocks" (issue 16, measured): only the split into replicates.

@@ -73,7 +73,7 @@ class RenderSettings:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
     sampler: "sobol-blocks" (one Owen-scrambled Sobol sequence per pixel, variance from its blocks
     under a fitted power law, render.film.blocks_variance; their default), "sobol" (R interleaved
-    independent replicates: noisier, model-free variance) or "independent" (direct, path).
+    independent replicates: noisier, model-free variance) or "independent" (direct, path, volpath).
     """
 
     integrator: str = "auto"

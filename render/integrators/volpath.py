@@ -18,6 +18,17 @@ queries only when the scene has media), over ``threads`` render threads. Its ran
 a pure function of (seed, pixel, sample, dimension), so its bytes do not depend on threads or
 batches and disjoint sample ranges merge exactly (:func:`render.film.merge_results`).
 
+Samplers (``Options.sampler``), as render.integrators.path has them: "sobol-blocks" (the
+default: one Owen-scrambled Sobol sequence per pixel, :mod:`render.sobol`; the variance image
+from R = render.sobol.replicates_for(spp) consecutive blocks under a fitted power law,
+:func:`render.film.blocks_variance`), "sobol" (R interleaved independent replicates; variance
+from the replicate means, model-free, R - 1 degrees of freedom per pixel) or "independent" (the
+hash; variance the sample variance over n). Under both Sobol samplers every vertex draws its
+light point, lobe, direction and roulette from fixed dimensions of its bounce, and the first
+tentative collision of each flight its distance and event; delta tracking's further collisions
+and the shadow rays' ratio tracking, whose counts vary, draw from the hash
+(render.integrators.volpath_kernels, "Random numbers").
+
 The numpy version (:func:`trace`, :func:`render_result_numpy`; ``render_volpath(...,
 numpy_reference=True)``) is the same estimator, vectorized in numpy, kept as the tested
 reference (tests/render/test_volpath_compiled.py compares the two per pixel). Each of its rounds
@@ -48,12 +59,13 @@ from ..media import EV_ABSORB, EV_SCATTER, MajorantError, MediumSet, hg_pdf, hg_
 from ..microfacet import (conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
                           rough_dielectric_pdf, rough_dielectric_sample)
 from ..sampling import _GOLDEN, _mix64, mis_weight, orthonormal_frame, to_local, to_world
+from ..sobol import SAMPLERS, block_size, key_replicates, replicate_of, replicates_for
 from .path import _STRATEGY_CODES, kernel_scene_of, pinhole_of
-from .path_kernels import F_DELTA, SAMPLER_INDEPENDENT, accumulate, add_unoccluded, sample_camera_rays
+from .path_kernels import F_DELTA, SAMPLER_SOBOL, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays
 from .prepared import PreparedScene, prepare
 from .volpath_kernels import (MediaKernel, VolConfig, media_kernel, shadow_flush, shadow_media_step, shadow_start,
                               vol_bounce)
-from .settings import RenderSettings, check_heuristic, check_strategy, heuristic_exponent, parse_sample_range
+from .settings import RenderSettings, check_heuristic, check_sampler, check_strategy, heuristic_exponent, parse_sample_range
 
 __all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "render_result_numpy",
            "trace_primary", "surface_eval",
@@ -75,10 +87,16 @@ class Options:
     strategy: str = "mis"
     #: MIS weights: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
+    #: random numbers of the compiled kernels: "sobol-blocks" (one Owen-scrambled Sobol sequence
+    #: per pixel, model variance: render.film.blocks_variance; the default), "sobol" (R
+    #: interleaved replicates, model-free variance) or "independent" (hash). The numpy
+    #: reference (render_result_numpy) keeps its own Generator whatever this says.
+    sampler: str = "sobol-blocks"
 
     def __post_init__(self):
         check_strategy(self.strategy)
         check_heuristic(self.heuristic)
+        check_sampler(self.sampler)
         if self.rr_depth < 0:
             raise ValueError(f"volpath: rr_depth must be >= 0, got {self.rr_depth}")
 
@@ -511,10 +529,12 @@ def _raise_majorant(ctx: VolContext, err: np.ndarray) -> None:
 
 
 def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfig, seed: int, mid0: int,
-                    start: int, stop: int, sample0: int) -> tuple[np.ndarray, np.ndarray, int]:
+                    start: int, stop: int, sample0: int, replicates: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
-    + pixel) with the compiled kernels. Returns ((N,) int64 pixels, (N, 3) float64 radiance,
-    rays traced: Embree queries for surfaces, media boundaries and shadows)."""
+    + pixel) with the compiled kernels; replicates: the R the Sobol keys are built with
+    (render.sobol.key_replicates; unread by the independent sampler). Returns ((N,) int64
+    pixels, (N, 3) float64 radiance, rays traced: Embree queries for surfaces, media boundaries
+    and shadows)."""
     k = cam.intrinsics
     n = stop - start
     npix = k.width * k.height
@@ -524,7 +544,7 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
     sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                       cur[5], cur[6], jit, SAMPLER_INDEPENDENT)
+                       cur[5], cur[6], jit, cfg.sampler, replicates)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -626,7 +646,9 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     interface). Batches of ``settings.batch_paths`` camera samples over ``settings.threads``
     threads, accumulated in batch order; every random number is a function of (seed, pixel,
     sample, dimension), so the bytes do not depend on threads or batch size. progress: optional
-    ``progress(done_paths, total_paths)`` after each batch."""
+    ``progress(done_paths, total_paths)`` after each batch. The Sobol samplers' film also keeps
+    per-replicate ("sobol") or per-block ("sobol-blocks") sums, as path's
+    (render.integrators.path.trace_view), so its variance image is theirs."""
     t0 = time.perf_counter()
     ps = prepared
     ctx = ctx if ctx is not None else volpath_context(scene, ps)
@@ -641,14 +663,22 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     cfg = VolConfig(max_depth=int(settings.max_depth), rr_depth=int(options.rr_depth), roulette=bool(options.roulette),
                     caustics="caustics" in effects, strategy=_STRATEGY_CODES[options.strategy],
                     mis_exponent=heuristic_exponent(options.heuristic), has_bg=bool(ps.background.max() > 0),
-                    has_media=ctx.media is not None, has_lights=not ps.lights.empty)
+                    has_media=ctx.media is not None, has_lights=not ps.lights.empty,
+                    sampler=SAMPLERS[options.sampler])
     chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
     kernel_scene_of(ps)
+    replicates = replicates_for(settings.spp)  # of the variance estimate (the render's planned spp)
+    block = block_size(options.sampler, settings.spp)  # 0: interleaved replicates, else consecutive blocks
+    keys_r = key_replicates(options.sampler, settings.spp)  # 1 under "sobol-blocks": one sequence per pixel
 
     def work(chunk):
-        return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a)
+        return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a, keys_r)
 
     film = Film(k.width, k.height)
+    if cfg.sampler == SAMPLER_SOBOL:
+        film.r1 = np.zeros((replicates, npix, 3))
+        film.rn = np.bincount(replicate_of(np.arange(a, b), replicates, block), minlength=replicates).astype(np.int64)
+        film.blocks = block > 0  # blocks of one sequence: the model variance (render.film.blocks_variance)
     rays = 0
     pool = ThreadPoolExecutor(settings.threads) if settings.threads > 1 and len(chunks) > 1 else None
     try:
@@ -658,6 +688,8 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
             if not np.all(np.isfinite(L)):
                 raise FloatingPointError("volpath produced a non-finite radiance (a bug: please report)")
             accumulate(film.s1, film.s2, film.n, pix, L)
+            if film.r1 is not None:
+                accumulate_replicates(film.r1, ch[0], npix, a, L, block)
             if progress is not None:
                 progress(ch[1], total)
     finally:

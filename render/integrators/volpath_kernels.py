@@ -18,13 +18,36 @@ tested): same events, probabilities, weights, MIS and roulette rules, and the sa
 :mod:`render.bsdf` and :mod:`render.microfacet` (ported here as scalar functions of local
 z-up frames; tests/render/test_volpath_kernels.py checks them against the numpy ones).
 
-Random numbers: the hash of :mod:`render.sampling` (``path_kernels._uniform``) per (path key,
-dimension). A path's key is a function of (seed, pixel, sample) (dimensions 0, 1: the pixel
-jitter); the path then draws dimensions 2, 3, ... in the order its events need them (delta
-tracking consumes a variable number). A shadow ray gets its own key, a hash of (path key,
-dimension at queueing), and draws its ratio-tracking dimensions 0, 1, ... from it. So every
-number is a pure function of (seed, pixel, sample, dimension): results do not depend on threads,
-batches or the order of paths in the wavefront.
+Random numbers (:attr:`VolConfig.sampler`). Independent (``SAMPLER_INDEPENDENT``): the hash of
+:mod:`render.sampling` (``path_kernels._uniform``) per (path key, dimension). A path's key is a
+function of (seed, pixel, sample) (dimensions 0, 1: the pixel jitter); the path then draws
+dimensions 2, 3, ... in the order its events need them (delta tracking consumes a variable
+number): the running counter ``dim`` of the state. A shadow ray gets its own key, a hash of
+(path key, dimension at queueing), and draws its ratio-tracking dimensions 0, 1, ... from it.
+
+Sobol (``SAMPLER_SOBOL``: volpath's "sobol" and "sobol-blocks", whose keys are render.sobol's;
+pbrt-v4's padded dimensions for a variable-length consumer). Every number a vertex needs comes
+from a FIXED Sobol dimension of its bounce k (the scattering events before it), in path's
+layout (:func:`render.sobol.dimension_group`, the same groups and scrambles as
+``path_kernels._sobol``): dimensions 2 + 8 k + j, j = (1, 2) the light pick and point (one 2-D
+group, the pick rescaled into the point as path does), 3 the BSDF lobe, (4, 5) the BSDF / phase
+direction, 6 roulette, 7 the first collision (j = 0, path's pick, goes unused). Delta tracking
+draws a variable number of collisions: the FIRST tentative collision of the segment that ends
+at vertex k (the flight from vertex k - 1, or the camera, to whatever it meets, across boundary
+crossings) takes its distance and event from the 2-D group at dimension 7 of bounce k
+(components 0 and 1: ``_sobol2(key, 2 + 8 k + 7)``; path draws that group's component 0 only,
+as its spare; flag ``F_FLIGHT`` set once they are drawn, cleared at the next vertex), so whether
+a flight collides, where, and whether it scatters are stratified together; every later collision of the
+segment takes them from the hash of (mix64(path key ^ salt), running counter ``dim``), and
+shadow rays' ratio tracking from their own hashed keys as under the independent sampler. So the
+dimensions with a fixed meaning are stratified (for single scattering in a homogeneous medium:
+the flight, the light point, the phase direction), the rest are independent; each number
+of one sample is still uniform and independent of the others (distinct groups, distinct
+scrambles), so every estimator stays unbiased.
+
+Either way every number is a pure function of (seed, pixel, sample, dimension): results do not
+depend on threads, batches or the order of paths in the wavefront, and disjoint sample ranges
+merge exactly.
 
 pssmlt's path sampler runs the same kernels with every number read from a primary sample U
 instead (``vol_bounce``'s U; six dimensions per vertex, no roulette, no media) and path's rules
@@ -36,7 +59,7 @@ A majorant below the extinction found at a collision stops the path and records 
 State layouts (one row per live path), shared with the driver:
 ints (N, 4) int64 [output slot, next dimension, bounces, medium (-1: vacuum)]; key (N,) uint64;
 flt (N, 4) float64 [throughput (3), density of the ray's sampling (solid angle)]; flags (N,)
-uint8 (path_kernels.F_DELTA, F_AFTER_DIFF); last_p (N, 3) float64 the last scattering vertex;
+uint8 (path_kernels.F_DELTA, F_AFTER_DIFF, :data:`F_FLIGHT`); last_p (N, 3) float64 the last scattering vertex;
 o32, d32 (N, 3) float32 the ray (what Embree reads).
 """
 from __future__ import annotations
@@ -48,13 +71,13 @@ import numpy as np
 from numba import njit
 
 from ..scene import ALPHA_SMOOTH
-from .path_kernels import (DIELECTRIC, EMISSIVE, F_AFTER_DIFF, F_DELTA, LAMBERT, MIRROR, STRAT_BSDF, STRAT_LIGHT,
-                           _albedo, _frame, _hit_point, _mis, _mix64, _offset, _pick, _sample_area, _sample_delta,
-                           _uniform)
+from .path_kernels import (DIELECTRIC, EMISSIVE, F_AFTER_DIFF, F_DELTA, LAMBERT, MIRROR, SAMPLER_INDEPENDENT,
+                           SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, _albedo, _frame, _hit_point, _mis, _mix64, _offset,
+                           _pick, _sample_area, _sample_delta, _sobol, _sobol2, _uniform)
 
 __all__ = ["VolConfig", "MediaKernel", "media_kernel", "vol_bounce", "shadow_start", "shadow_media_step",
            "shadow_flush", "surface_eval_local", "surface_sample_local", "hg_pdf_k", "hg_sample_k",
-           "CONDUCTOR", "ROUGH_DIELECTRIC", "EV_PASS", "EV_SCATTER", "EV_ABSORB"]
+           "F_FLIGHT", "SOBOL_BOUNCE_DIMS", "CONDUCTOR", "ROUGH_DIELECTRIC", "EV_PASS", "EV_SCATTER", "EV_ABSORB"]
 
 CONDUCTOR, ROUGH_DIELECTRIC = 4, 5  # render.bsdf
 EV_PASS, EV_SCATTER, EV_ABSORB = 0, 1, 2  # render.media
@@ -65,6 +88,17 @@ _LOG_RR_T = math.log(0.1)  # ratio tracking's roulette threshold (render.media._
 _LOG2 = math.log(2.0)
 _TMAX_CAP = 3e38
 _SHADOW_SALT = np.uint64(0xD1B54A32D192ED03)
+_TRACK_SALT = np.uint64(0x8CB92BA72F3D8DD7)  # the Sobol samplers' tracking hash key: mix64(path key ^ salt)
+_ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
+#: per-path flag (beside path_kernels.F_DELTA, F_AFTER_DIFF): the Sobol samplers' first tentative
+#: collision of the current segment has been drawn (its distance and event from the bounce's
+#: Sobol dimensions; later collisions of the segment from the hash)
+F_FLIGHT = np.uint8(4)
+#: the Sobol layout of a bounce (render.sobol.dimension_group): dimensions 2 + 8 k + j, j = [unused
+#: (path's light pick), light point (2), lobe, direction (2), roulette, first collision (2-D:
+#: distance, event; its second component is the group's component 1, which path never draws)]
+SOBOL_BOUNCE_DIMS = 8
+_SD_LIGHT, _SD_LOBE, _SD_DIR, _SD_RR, _SD_FLIGHT = 1, 3, 4, 6, 7
 _INV_4PI = 1.0 / (4.0 * math.pi)
 
 
@@ -86,6 +120,10 @@ class VolConfig(NamedTuple):
     #: after a diffuse vertex); shadow rays end 1e-4 of their length and twice the offset short of
     #: the light (volpath: 1e-5 and 1e-6 extent); an emitter's distance for MIS is the hit distance
     path_rules: bool = False
+    #: path_kernels.SAMPLER_INDEPENDENT (every number from the hash) or SAMPLER_SOBOL (the
+    #: Owen-scrambled Sobol layout of the module docstring; "sobol" and "sobol-blocks" differ only
+    #: in the keys); unread when primary samples U are given
+    sampler: int = SAMPLER_INDEPENDENT
 
 
 class MediaKernel(NamedTuple):
@@ -526,6 +564,21 @@ def _rand(key, dim, U, row):
     return _uniform(key, dim)
 
 
+@njit(inline="always", **_JIT)
+def _light_uniforms(cdf, key, base):
+    """The Sobol samplers' next-event numbers at a bounce of first dimension ``base``: (pick, u1,
+    u2) for :func:`_sample_light`, pick and light point from the one 2-D group base + 1, base + 2:
+    the pick's number, rescaled within the picked light's CDF interval, is uniform again and is
+    the point's first coordinate (render.integrators.path_kernels._next_event's rule), so each
+    light's points keep the pair's stratification."""
+    ua, u2 = _sobol2(key, base + _SD_LIGHT)
+    k = _pick(cdf, ua)
+    lo = cdf[k - 1] if k > 0 else 0.0
+    width = cdf[k] - lo
+    u1 = min((ua * cdf[len(cdf) - 1] - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
+    return ua, max(u1, 0.0), u2
+
+
 @njit(**_JIT)
 def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, btfar,
                ints, keys, flt, flags, last_p, o32, d32, L,
@@ -553,11 +606,14 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
     md_sa, md_ss, md_Le, md_g, mus, homog = md.sigma_a, md.sigma_s, md.Le, md.g, md.mu, md.homogeneous
     lo, hi, gshape, goff, gdata = md.lo, md.hi, md.grid_shape, md.grid_off, md.grid_data
     b_normal, b_obj, b_ids, m_extent = md.b_normal, md.b_obj, md.b_ids, md.extent[0]
+    sob = cfg.sampler == SAMPLER_SOBOL and U.shape[0] == 0
     nn = 0
     nq = 0
     for i in range(len(prim)):
         slot, dim, bounces, mid = ints[i, 0], ints[i, 1], ints[i, 2], ints[i, 3]
         key = keys[i]
+        base = 2 + SOBOL_BOUNCE_DIMS * bounces  # this bounce's Sobol dimensions (sob)
+        tkey = _mix64(key ^ _TRACK_SALT) if sob else key  # the tracking hash's key
         b0, b1, b2, pdf_prev = flt[i, 0], flt[i, 1], flt[i, 2], flt[i, 3]
         fl = flags[i]
         delta_prev = (fl & F_DELTA) != 0
@@ -583,7 +639,13 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
                     t = 0.0
                     absorbed = False
                     while True:
-                        t -= math.log1p(-_uniform(key, dim)) / mu
+                        first = sob and (fl & F_FLIGHT) == 0  # the segment's first collision: Sobol
+                        if first:
+                            fl = np.uint8(fl | F_FLIGHT)
+                            u_fl, u_ev = _sobol2(key, base + _SD_FLIGHT)  # distance and event: one 2-D group
+                            t -= math.log1p(-u_fl) / mu
+                        else:
+                            t -= math.log1p(-_uniform(tkey, dim)) / mu
                         dim += 1
                         if not t < t_end:
                             break
@@ -604,7 +666,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
                         pss = (ss0 + ss1 + ss2) / (3.0 * mu)
                         pn = (sn0 + sn1 + sn2) / (3.0 * mu)
                         tot = pa + pss + pn
-                        u = _uniform(key, dim) * tot
+                        u = (u_ev if first else _uniform(tkey, dim)) * tot
                         dim += 1
                         if u < pa:
                             absorbed = True
@@ -698,9 +760,12 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
             eps = _offset(px, py, pz, extent)
         # next-event estimation
         if cfg.has_lights:
+            if sob:
+                lu0, lu1, lu2 = _light_uniforms(cdf, key, base)
+            else:
+                lu0, lu1, lu2 = _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot)
             ok, lx, ly, lz, ldist, L0, L1, L2, lpdf, ldelta = _sample_light(
-                cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, px, py, pz,
-                _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot))
+                cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, px, py, pz, lu0, lu1, lu2)
             skey = _mix64(key ^ (np.uint64(dim) * _SHADOW_SALT))
             if ok:
                 if scat:
@@ -745,7 +810,11 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
                 nq += 1
         dim += 3  # NEE's dimensions, used or not (a fixed layout per vertex)
         # the next ray
-        u0, u1, u2 = _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot)
+        if sob:
+            u0 = _sobol(key, base + _SD_LOBE)
+            u1, u2 = _sobol2(key, base + _SD_DIR)
+        else:
+            u0, u1, u2 = _rand(key, dim, U, slot), _rand(key, dim + 1, U, slot), _rand(key, dim + 2, U, slot)
         dim += 3
         if scat:
             wx, wy, wz = hg_sample_k(g, dx, dy, dz, u1, u2)
@@ -770,7 +839,7 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
         bounces += 1
         if cfg.roulette and bounces > cfg.rr_depth:
             q = min(1.0, max(max(b0, b1), b2))
-            u = _rand(key, dim, U, slot)
+            u = _sobol(key, base + _SD_RR) if sob else _rand(key, dim, U, slot)
             dim += 1
             if not u < q:
                 continue

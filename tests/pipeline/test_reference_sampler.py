@@ -34,6 +34,21 @@ def test_sampler_is_recorded_and_changes_the_render(tmp_path):
     assert np.all(np.isfinite(runs["sobol"])) and not np.array_equal(runs[None], runs["sobol"])
 
 
+def test_volpath_reads_the_sampler_through_the_cli(tmp_path):
+    """volpath reads --sampler like path (issue 16: its default is sobol-blocks too): recorded in
+    the manifest with its replicates, and the independent sampler gives other bytes."""
+    runs = {}
+    for sampler in (None, "independent"):
+        out = tmp_path / (sampler or "default") / "reference"
+        proc = _reference(out, "--integrator", "volpath", *(["--sampler", sampler] if sampler else []))
+        assert proc.returncode == 0, proc.stderr
+        manifest = json.loads((out / "manifest.json").read_text())
+        assert manifest["params"]["sampler"] == (sampler or "sobol-blocks")
+        assert manifest["params"]["replicates"] == (None if sampler == "independent" else 4)
+        runs[sampler] = read_exr(next((out / "linear").glob("*.exr")))
+    assert np.all(np.isfinite(runs[None])) and not np.array_equal(runs[None], runs["independent"])
+
+
 @pytest.mark.parametrize("extra,names", [(["--sampler", "halton"], ["--sampler", "halton"]),
                                          (["--sampler", "sobol", "--integrator", "bdpt"], ["--sampler", "bdpt"])])
 def test_bad_or_unused_sampler_exits_2_with_one_line(tmp_path, extra, names):

@@ -22,7 +22,7 @@ from render.integrators.settings import OPTION_NAMES
 USES = {
     "direct": {"strategy", "heuristic", "sampler"},
     "path": {"roulette", "rr_depth", "strategy", "heuristic", "sampler"},
-    "volpath": {"roulette", "rr_depth", "strategy", "heuristic"},
+    "volpath": {"roulette", "rr_depth", "strategy", "heuristic", "sampler"},
     "bdpt": {"roulette", "rr_depth", "heuristic"},
     "sppm": {"photons_per_pass"},
     "pssmlt": {"heuristic"},

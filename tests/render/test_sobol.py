@@ -174,7 +174,7 @@ def test_variance_image_is_the_replicates_and_honest():
 def test_sampler_refused_by_integrators_that_do_not_use_it():
     sc, cam, _ = _area_light_probe(2)
     with pytest.raises(ValueError, match="sampler"):
-        render(sc, cam, RenderSettings(integrator="volpath", spp=1, sampler="sobol"))
+        render(sc, cam, RenderSettings(integrator="bdpt", spp=1, sampler="sobol"))
     with pytest.raises(ValueError, match="sampler must be"):
         RenderSettings(sampler="halton")
 
