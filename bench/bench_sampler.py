@@ -14,10 +14,23 @@ Figures (bench/results/sampler.json), one run:
   is judged against its own reference so the figures measure noise, not the 0.2-0.3% mean
   offset between the two renderers (bench/results/media_mitsuba.json).
 
+``--volpath`` (bench/results/sampler_volpath.json; ``--quick``: sampler_volpath_quick.json): volpath
+on scenes/cornell_fog.yaml and scenes/glowing_smoke.yaml at VOL_SIZE^2 (max_depth 8), "sobol-blocks"
+against "independent" against a long reference of our own ("sobol" replicates, seed 1000, its
+variance subtracted as above): the RMSE at equal spp (seeds 1..VOL_SEEDS, mean of the per-seed
+RMSEs), and at equal time: the seconds per spp of each sampler timed in interleaved rounds
+at TIME_SPP (wall and CPU), the cost ratio the median of the rounds' CPU ratios (the wall ratios
+of a round scatter too much on a shared machine; recorded beside), and the
+independent sampler given the spp that costs what "sobol-blocks" costs at the top level (spp x
+that ratio). Load averages before and
+after are recorded.
+
 Run: ``.venv/bin/python -m bench.bench_sampler`` (``--quick``: fewer spp levels, a shorter reference).
 """
 from __future__ import annotations
 
+import os
+import statistics
 import sys
 import tempfile
 import time
@@ -28,6 +41,10 @@ import numpy as np
 from bench.common import write_result
 
 SIZE = 128
+#: volpath's figures: image size, seeds per level, the spp the per-spp cost is timed at
+VOL_SIZE = 64
+VOL_SEEDS = 2
+TIME_SPP = 64
 
 
 def _cornell():
@@ -98,8 +115,89 @@ def _mitsuba(scene, cam, spps, ref_spp) -> dict:
     return out
 
 
+def _volpath_scene(name: str, spps: list[int], ref_spp: int, seeds: int, time_repeats: int) -> dict:
+    """volpath's figures on built-in scene ``name`` (module docstring)."""
+    from pipeline.stages.reference import resize_camera
+    from render.integrators import RenderSettings, prepare, render
+    from rig.build import load_scene
+
+    rig = load_scene(name)
+    scene, cam = rig.scene, resize_camera(rig.cameras["scene"][0], VOL_SIZE, VOL_SIZE)
+    ps = prepare(scene)
+
+    def run(sampler: str, spp: int, seed: int):
+        t0, c0 = time.perf_counter(), time.process_time()
+        r = render(scene, cam, RenderSettings(integrator="volpath", spp=int(spp), seed=seed, sampler=sampler), prepared=ps)
+        return r, time.perf_counter() - t0, time.process_time() - c0
+
+    run("independent", 1, 0)  # kernels loaded before anything is timed
+    ref, ref_s, _ = run("sobol", ref_spp, 1000)
+    ref_mean = ref.mean.astype(np.float64)
+    noise = float(ref.variance.astype(np.float64).mean())
+
+    def rmse(r) -> tuple[float, float]:
+        mse = float(np.mean((r.mean.astype(np.float64) - ref_mean) ** 2))
+        return np.sqrt(mse), np.sqrt(max(mse - noise, 0.0))
+
+    out = {"scene": name, "size": [VOL_SIZE, VOL_SIZE], "reference_spp": ref_spp, "reference_s": round(ref_s, 2),
+           "reference_noise_mse": noise, "reference_mean_rgb": ref_mean.mean((0, 1)).tolist(), "equal_spp": []}
+    samplers = ("sobol-blocks", "independent")
+    for spp in spps:
+        row = {"spp": int(spp)}
+        for sampler in samplers:
+            errs = [rmse(run(sampler, spp, seed)[0]) for seed in range(1, seeds + 1)]
+            row[sampler] = {"rmse": float(np.mean([e[0] for e in errs])),
+                            "rmse_truth_est": float(np.mean([e[1] for e in errs])),
+                            "per_seed_truth_est": [float(e[1]) for e in errs]}
+        row["ratio_sobol_blocks_to_independent"] = (row["sobol-blocks"]["rmse_truth_est"]
+                                                    / row["independent"]["rmse_truth_est"])
+        out["equal_spp"].append(row)
+    # seconds per spp, wall and CPU, of renders interleaved in rounds (the machine is shared). The
+    # cost ratio is the median of the rounds' CPU ratios (this process's CPU seconds, both render
+    # threads): at load 5-6 on 2 cores the rounds' wall ratios scattered 0.4-1.4 (recorded beside)
+    times = {s: [] for s in samplers}
+    cpu = {s: [] for s in samplers}
+    for _ in range(time_repeats):
+        for sampler in samplers:
+            _, wall, c = run(sampler, TIME_SPP, 7)
+            times[sampler].append(wall / TIME_SPP)
+            cpu[sampler].append(c / TIME_SPP)
+    per_spp = {s: statistics.median(t) for s, t in times.items()}
+    rounds = [a / b for a, b in zip(times["sobol-blocks"], times["independent"])]
+    cost = statistics.median([a / b for a, b in zip(cpu["sobol-blocks"], cpu["independent"])])
+    top = int(spps[-1])
+    ind_spp = max(1, int(round(top * cost)))
+    errs = [rmse(run("independent", ind_spp, seed)[0])[1] for seed in range(1, seeds + 1)]
+    sb = out["equal_spp"][-1]["sobol-blocks"]["rmse_truth_est"]
+    out["equal_time"] = {"time_spp": TIME_SPP, "seconds_per_spp": {s: [round(x, 5) for x in t] for s, t in times.items()},
+                         "cpu_seconds_per_spp": {s: [round(x, 5) for x in t] for s, t in cpu.items()},
+                         "median_seconds_per_spp": per_spp, "round_wall_ratios": rounds,
+                         "wall_cost_ratio_median": statistics.median(rounds),
+                         "cost_ratio_sobol_blocks_to_independent": cost,
+                         "sobol_blocks_spp": top, "independent_spp": ind_spp,
+                         "independent_rmse_truth_est": float(np.mean(errs)),
+                         "sobol_blocks_rmse_truth_est": sb,
+                         "ratio_sobol_blocks_to_independent": sb / float(np.mean(errs))}
+    return out
+
+
+def volpath_main(quick: bool) -> None:
+    spps = [16, 64] if quick else [16, 64, 256]
+    ref_spp = 256 if quick else 4096
+    load0 = os.getloadavg()
+    t0 = time.perf_counter()
+    scenes = [_volpath_scene(n, spps, ref_spp, 1 if quick else VOL_SEEDS, 1 if quick else 5)
+              for n in ("cornell_fog", "glowing_smoke")]
+    figures = {"integrator": "volpath", "max_depth": 8, "scenes": scenes, "wall_s": round(time.perf_counter() - t0, 1),
+               "load_before": load0, "load_after": os.getloadavg()}
+    write_result("sampler_volpath_quick" if quick else "sampler_volpath", figures)
+
+
 def main(argv: list[str]) -> None:
     quick = "--quick" in argv
+    if "--volpath" in argv:
+        volpath_main(quick)
+        return
     spps = [16, 64] if quick else [16, 64, 256]
     ref_spp = 256 if quick else 2048
     scene, cam = _cornell()
