@@ -181,7 +181,7 @@ class ReferenceConfig:
     seed: int = 0
     #: maximum bounces
     max_depth: int = 8
-    #: random numbers of path / direct: "sobol-blocks", "sobol" or "independent" (render.sobol);
+    #: random numbers of path / direct / volpath: "sobol-blocks", "sobol" or "independent" (render.sobol);
     #: None: sobol-blocks where the chosen integrator reads a sampler; given explicitly to one
     #: that does not: refused
     sampler: str | None = None
