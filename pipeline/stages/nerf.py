@@ -18,11 +18,11 @@ grid and early termination; colour batched in torch; chunks of rays over both co
 scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. With the opt-in
 ``train_full_res`` the fast model trains on rays through the capture's own pixels, the working scale
 serving the held-out curve (both are off by default: on the default scene's 4-minute stage they
-scored 2.5 dB lower; docs/architecture.md). When the full-resolution render's measured cost does not
-fit the time left, the renders are the working scale's pixels repeated (nearest) and
-``render_full_res`` is false under
-``time.planned``. ꟻLIP and the subject's figures are the validate
-stage's (ꟻLIP costs seconds per view). The reference is
+scored 2.5 dB lower; docs/architecture.md). The full-resolution render is planned when its measured
+cost (:func:`plan_renders`) fits ``FULL_RES_SHARE`` of the budget, and done when it fits the time left
+after training; otherwise the time is planned for the working scale's render alone and the renders
+are its pixels repeated (nearest), ``render_full_res`` false under ``time.planned``. ꟻLIP and the
+subject's figures are the validate stage's (ꟻLIP costs seconds per view). The reference is
 ``--reference DIR`` (``linear/<view>.exr``, the path tracer's stage) when given, else the
 capture's own held-out images (exact for direct-only scenes rendered by the rasterizer).
 
@@ -36,14 +36,18 @@ interrupted run resumes with ``resume=True`` and a finished folder never looks h
 Time: ``minutes`` bounds the whole stage's wall time from the call (loading, training, held-out
 renders, writing; the interpreter's start and imports before it are not counted). Training runs
 against a deadline (:class:`recon.nerf.train.Deadline`): it stops when the time left covers only
-the held-out renders, planned from the render cost per ray measured on the model (untrained
-first, then at every held-out curve evaluation) at the finest evaluation scale whose cost fits
-``RENDER_SHARE`` of the budget, plus writing (``WRITE_S_PER_MPIX``, the checkpoint at ``CHECKPOINT_BYTES_PER_S``).
+the held-out renders, planned from the render cost per ray measured on the model as the final render
+spends it (whole rows of the capture-size view with ``render_full_res``, else of the working-scale
+view, through the same chunks and threads; untrained first, then after grid growth and occupancy
+updates) by :func:`plan_renders`: at the capture's resolution when that fits ``FULL_RES_SHARE`` of the
+budget, else at the finest evaluation scale whose cost fits ``RENDER_SHARE`` of it, plus writing
+(``WRITE_S_PER_MPIX``, the checkpoint at ``CHECKPOINT_BYTES_PER_S``).
 After training the held-out views are evaluated at the working scale when their measured cost
 fits the time left, else at the finest coarser scale that fits (working size / k, the reference
 area-averaged by k; ``eval_factor`` in metrics, renders still written at the capture's size).
 ``metrics.json`` records the plan and what happened under ``time``: ``budget_s``; ``planned``
-(load_s, train_s at the first step and at the end, render_s, write_s, eval_factor) and
+(load_s, train_s at the first step and at the end, render_s, write_s, eval_factor, render_full_res,
+the last probe's view size and rays, the probes' number and seconds) and
 ``actual`` (load_s, train_wall_s, render_s, write_s, stage_s, stopped_by). A budget that leaves
 no time for one training step trains none (``steps`` 0): the untrained model is still rendered,
 at the coarsest scale if need be. ``clock="cpu"`` (measuring on shared cores) keeps
@@ -82,7 +86,7 @@ from .capture import check_capture_folder
 from .poses import check_poses
 
 __all__ = ["NerfStageConfig", "run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
-           "RENDER_SHARE", "WRITE_S_PER_MPIX"]
+           "plan_renders", "render_reserve_s", "RENDER_SHARE", "FULL_RES_SHARE", "WRITE_S_PER_MPIX"]
 
 #: curve.csv's columns: training step, training seconds, wall seconds since training began, held-out
 #: display PSNR (8-bit sRGB) and linear PSNR (dB)
@@ -93,6 +97,9 @@ CURVE_TIME, CURVE_PSNR = "train_s", "display_psnr"
 #: untrained model's cost (every sample evaluated) bounds the trained one from above and would
 #: leave short runs no training; what does not fit at the end is evaluated at a coarser scale
 RENDER_SHARE = 0.25
+#: the share of the budget the held-out renders may take at the capture's resolution (``render_full_res``;
+#: every capture pixel instead of the working scale's, so a larger share than RENDER_SHARE)
+FULL_RES_SHARE = 0.5
 #: writing one held-out view (linear EXR, PNG preview, depth EXR) per megapixel of the capture,
 #: seconds (measured 0.6 on 2 cores shared by 7 processes, 0.22 on idle ones)
 WRITE_S_PER_MPIX = 0.6
@@ -137,6 +144,31 @@ def eval_factor(s_per_ray: float, rays_at_1: int, available_s: float, factors: l
         if s_per_ray * rays_at_1 / (k * k) <= available_s:
             return k
     return factors[-1]
+
+
+def plan_renders(s_per_ray: float, rays_at_1: int, rays_full: int, room_s: float, full_room_s: float,
+                 factors: list[int]) -> tuple[int, bool]:
+    """What the held-out renders will be, (k, full_res), at ``s_per_ray`` seconds a ray: at the
+    capture's resolution (``rays_full`` rays, 0 when not asked for, besides the working scale's
+    ``rays_at_1``) when that costs at most ``full_room_s`` seconds, k = 1; else the working scale
+    alone, at the smallest factor k whose cost fits ``room_s`` (:func:`eval_factor`). One rule
+    for both the time reserved before training and the choice after it, so time is never
+    reserved for a render that is then not done."""
+    if rays_full and s_per_ray * (rays_at_1 + rays_full) <= full_room_s:
+        return 1, True
+    return eval_factor(s_per_ray, rays_at_1, room_s, factors), False
+
+
+def render_reserve_s(s_per_ray: float, rays_at_1: int, rays_full: int, budget_s: float, view_s: float,
+                     factors: list[int]) -> float:
+    """Seconds reserved during training for the held-out renders at ``s_per_ray`` (the margin
+    included), ``view_s`` the views' fixed cost: the render :func:`plan_renders` plans with
+    ``FULL_RES_SHARE`` (capture resolution) and ``RENDER_SHARE`` (working scale) of ``budget_s``,
+    the working scale's capped at its share (the coarsest scale when none fits)."""
+    k, full = plan_renders(s_per_ray, rays_at_1, rays_full, RENDER_SHARE * budget_s - view_s,
+                           FULL_RES_SHARE * budget_s - view_s, factors)
+    render = s_per_ray * (rays_at_1 / (k * k) + (rays_full if full else 0)) + view_s
+    return render if full else min(render, RENDER_SHARE * budget_s)
 
 
 def _at_scale(view: View, k: int) -> View:
@@ -227,11 +259,10 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
     view_s = VIEW_OVERHEAD_S * len(data.test)
 
     def after_training_s(s_per_ray: float) -> float:
-        """Held-out renders at the finest evaluation scale whose cost fits RENDER_SHARE of the
-        budget (the coarsest when none does), writing the views and the checkpoint."""
-        s = RENDER_MARGIN * s_per_ray
-        k = eval_factor(s, rays_at_1, RENDER_SHARE * budget_s - s * rays_full - view_s, factors)
-        render = min(s * (rays_at_1 / (k * k) + rays_full) + view_s, RENDER_SHARE * budget_s)
+        """Held-out renders as :func:`plan_renders` plans them (at the capture's resolution when
+        that fits FULL_RES_SHARE of the budget, else at the finest evaluation scale whose cost fits
+        RENDER_SHARE of it, the coarsest when none does), writing the views and the checkpoint."""
+        render = render_reserve_s(RENDER_MARGIN * s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors)
         return render + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={
@@ -260,7 +291,8 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         if clock == "wall":  # the grids grow from res_init to res_final (fast model): the saved state with them
             growth = (getattr(model_cfg, "res_final", 1) / getattr(model_cfg, "res_init", 1)) ** 2
             ckpt_s_est = growth * checkpoint_s(make_model(model, data.lo, data.hi, seed, model_cfg))
-        deadline = Deadline(deadline_end, after_training_s) if clock == "wall" else None
+        deadline = (Deadline(deadline_end, after_training_s, data.test[0].full_camera if full_res else None)
+                    if clock == "wall" else None)
         result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)
         if result.steps == 0 and not quiet:
             console.print(f"nerf: --minutes {minutes:g} left no time for a training step; the untrained model is "
@@ -270,10 +302,9 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         s_per_ray = RENDER_MARGIN * plan.get("render_s_per_ray", 0.0)
         available = math.inf
         if deadline is not None:
-            available = deadline_end - train_end - write_s - checkpoint_s(result.model) - view_s
-            k = eval_factor(s_per_ray, rays_at_1, available, factors)
-            if full_res and s_per_ray * (rays_at_1 / (k * k) + rays_full) > available:
-                full_res = False  # the full-resolution render does not fit: repeat working-scale pixels
+            # the checkpoint is saved (training wrote it): what is left is copying it into the stage
+            available = deadline_end - train_end - write_s - checkpoint_s(result.model) / 2 - view_s
+            k, full_res = plan_renders(s_per_ray, rays_at_1, rays_full, available, available, factors)
         else:
             k = 1
         views = [_at_scale(v, k) for v in data.test]
@@ -328,7 +359,9 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
                             "render_s_per_view": VIEW_OVERHEAD_S,
                             "write_s": round(write_s + checkpoint_s(result.model), 3),
                             "eval_factor": k, "eval_size": [eval_w, eval_h],
-                            "render_full_res": full_res},
+                            "render_full_res": full_res, "probe_size": plan.get("probe_size"),
+                            "probe_rays": plan.get("probe_rays_last"), "probes": plan.get("probes"),
+                            "probe_s": plan.get("probe_s")},
                 "actual": {"load_s": round(load_s, 3), "train_wall_s": plan["train_wall_s"],
                            "train_total_s": round(train_end - t_train, 3), "render_s": round(render_s, 3),
                            "stopped_by": plan["stopped_by"]},

@@ -12,15 +12,23 @@ state. ``train(..., checkpoint=path)`` writes one every ``checkpoint_every_s`` s
 and ``resume=True`` continues from it up to the same budget.
 
 A :class:`Deadline` bounds the wall time of training *and of what follows it*: the caller says
-when everything must be done (a ``time.perf_counter()`` value) and how long it needs after
-training given the measured render cost per ray (held-out renders, writing). Training then plans
-its length from the wall clock: the render cost per ray is measured on the model before the first
-step, again after every grid upsampling (larger grids render slower) and at every held-out curve
-evaluation (occupancy skipping makes a trained model cheaper); a step is started only when it, the curve
-evaluations still due and the caller's share fit before the end (so a budget too short for one
-step trains none: the caller still renders and writes the untrained model in time). The schedule's progress
-(learning rates, grid upsampling) follows the planned length, never decreasing; the final
-held-out curve point is left to the caller (it renders those views anyway).
+when everything must be done (a ``time.perf_counter()`` value), which view its finest render
+draws (``probe_camera``: the capture-size view when the held-out views are rendered there) and how
+long it needs after training given the measured render cost per ray (held-out renders, writing).
+Training then plans its length from the wall clock: the render cost per ray is measured as the final
+render spends it, a batch of whole rows of ``probe_camera`` (up to one ``INFERENCE_CHUNK`` per thread)
+through :func:`render_view`, at most ``PROBE_SHARE`` of the time left; before the first step, again
+after every grid upsampling (larger grids render slower) and after occupancy updates (occupancy
+skipping makes a trained model cheaper) once the time since the last probe is ``1 / PROBE_SHARE``
+times that probe's (the probes together about ``PROBE_SHARE`` of the time). The held-out curve's own
+cost (random pixel subsets, one call per view) is priced from its evaluations. A step is started
+only when it, the curve evaluations still due and the caller's share fit before the end (so a
+budget too short for one step trains none: the caller still renders and writes the untrained model
+in time). The schedule's progress (learning rates, grid upsampling) follows the planned length,
+never decreasing; the final held-out curve point is left to the caller (it renders those views
+anyway). Why rows of the capture-size view: 128 random working-scale pixels, one call, priced the
+default scene's 1280x960 render at 78 us a ray where the render spent 25 (load 5), so a 10-minute
+stage reserved a full-resolution render it then judged not to fit, and left ~150 s unused.
 """
 from __future__ import annotations
 
@@ -42,7 +50,7 @@ from render.metrics import mse_to_psnr, psnr, ssim, to_display  # one PSNR conve
 from .data import NerfData, PixelSampler, camera_rays, stack_rays
 from .models import MODELS, make_model
 
-__all__ = ["TrainConfig", "TrainResult", "Deadline", "train", "render_view", "evaluate_view", "evaluate_views",
+__all__ = ["TrainConfig", "TrainResult", "Deadline", "probe_pixels", "train", "render_view", "evaluate_view", "evaluate_views",
            "mse_to_psnr", "render_cost_per_ray"]
 
 
@@ -90,7 +98,9 @@ class TrainResult:
     {step, train_s, wall_s, display_psnr, linear_psnr} (held-out PSNR in dB at the working scale, of
     the 8-bit sRGB images and of linear radiance); plan: with a
     :class:`Deadline`, the wall-time plan (seconds): ``planned_train_s`` at the first step and at
-    the end, ``after_training_s_first`` (the caller's share as first planned), ``train_wall_s`` spent, ``render_s_per_ray`` measured last, ``stopped_by``."""
+    the end, ``after_training_s_first`` (the caller's share as first planned), ``train_wall_s`` spent,
+    ``render_s_per_ray`` measured last, ``stopped_by``, ``curve_s_per_ray``, ``probes`` and ``probe_s``
+    (their number and seconds), ``probe_rays_last``, ``probe_size`` (the probe view's [W, H])."""
 
     model: nn.Module
     steps: int
@@ -102,24 +112,42 @@ class TrainResult:
 #: rays per chunk of a held-out render through ``render_inference`` (one chunk per thread at a time)
 INFERENCE_CHUNK = 1 << 15
 
-#: the share of the time left that one render-cost probe may take (:func:`train`'s probe_cost)
+#: the share of the time left that one render-cost probe may take (:func:`train`'s probe_cost), and
+#: of the time between the probes that follow occupancy updates
 PROBE_SHARE = 0.02
+#: rays of the probe's first estimate (random pixels of the probe view), which sizes the probe
+PROBE_CALIBRATION_RAYS = 256
 
 
 @dataclass(frozen=True)
 class Deadline:
     """end: ``time.perf_counter()`` value by which training and everything after it must be done;
     after_s(s_per_ray): seconds the caller needs after training (held-out renders, writing),
-    given the latest measured render cost in seconds per ray (:func:`render_view`)."""
+    given the latest measured render cost in seconds per ray (:func:`render_view`); probe_camera:
+    the view of the finest render the caller will do (its cost per ray is measured on whole rows of
+    it; None: the first held-out view at the working scale)."""
 
     end: float
     after_s: Callable[[float], float]
+    probe_camera: Camera | None = None
 
 
-def render_cost_per_ray(model: nn.Module, camera: Camera, pixels: torch.Tensor) -> float:
+def probe_pixels(camera: Camera, n: int) -> torch.Tensor:
+    """(min(n, W H),) flat indices of whole rows of ``camera``, evenly spread over its height (the
+    last one cut to n): the rays of a render's chunks as :func:`render_view` deals them, coherent
+    along each row, with the view's mix of subject and background."""
+    k = camera.intrinsics
+    total = k.width * k.height
+    if n >= total:
+        return torch.arange(total)
+    rows = torch.linspace(0, k.height - 1, math.ceil(n / k.width)).round().long().unique()
+    return (rows[:, None] * k.width + torch.arange(k.width)[None, :]).reshape(-1)[:n]
+
+
+def render_cost_per_ray(model: nn.Module, camera: Camera, pixels: torch.Tensor, threads: int | None = None) -> float:
     """Wall seconds per ray of :func:`render_view` of ``pixels`` ((P,) flat indices) of ``camera``."""
     t0 = time.perf_counter()
-    render_view(model, camera, pixels=pixels)
+    render_view(model, camera, pixels=pixels, threads=threads)
     return (time.perf_counter() - t0) / max(int(pixels.shape[0]), 1)
 
 
@@ -136,9 +164,7 @@ def render_view(model: nn.Module, camera: Camera, chunk: int = 8192,
     two threads spent more time waiting for each other than working (a 1280x960 view 55 s against
     30 s with one thread). Other models render ``chunk`` rays at a time through ``render``."""
     model.eval()
-    o, d = camera_rays(camera)
-    if pixels is not None:
-        o, d = o[pixels], d[pixels]
+    o, d = camera_rays(camera, pixels)
     if hasattr(model, "render_inference"):
         model.prepare_inference()  # the dense density grid, built once before the threads share it
         threads = threads or torch.get_num_threads()
@@ -256,39 +282,54 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     curve_rays = sum(v.camera.intrinsics.width * v.camera.intrinsics.height if px is None else int(px.shape[0])
                      for v, px in zip(data.test, pixels))
     plan: dict = {}
-    s_per_ray = 0.0
-    if deadline is not None:  # fixed probe pixels of a held-out view: the render cost of the model as it is
+    s_per_ray = 0.0        # the caller's render cost per ray (probe_cost)
+    curve_s_per_ray = 0.0  # the held-out curve's (random pixel subsets, one call per view)
+    probe_log = {"n": 0, "s": 0.0, "last_at": 0.0, "last_s": 0.0, "rays": 0}
+    if deadline is not None:
+        probe_cam = deadline.probe_camera or data.test[0].camera
+        k0 = probe_cam.intrinsics
         g = torch.Generator().manual_seed(cfg.seed + 2)
-        k0 = data.test[0].camera.intrinsics
-        probe = torch.randperm(k0.width * k0.height, generator=g)[:min(136, k0.width * k0.height)]
+        calibration = torch.randperm(k0.width * k0.height, generator=g)[:PROBE_CALIBRATION_RAYS + 8]
+        probe_rows = probe_pixels(probe_cam, cfg.threads * INFERENCE_CHUNK)
 
     def probe_cost() -> float:
-        """The model's render cost per ray, measured on at most 128 probe rays: as many as fit
-        PROBE_SHARE of the time left before the deadline at the cost of the 8 warm-up rays (an
-        upper bound per ray: first-call overheads included), at least 8. A fixed 128 cost 10 s of
-        an untrained model on 2 loaded cores, most of a 12 s budget."""
-        t0 = time.perf_counter()
-        render_view(model, data.test[0].camera, pixels=probe[:8])  # first-call overheads are not a ray's cost
-        warm_s_per_ray = (time.perf_counter() - t0) / min(8, probe.shape[0])
+        """The model's render cost per ray as the caller's render spends it: whole rows of the
+        probe view (``probe_pixels``: up to one INFERENCE_CHUNK per thread, dealt to the threads by
+        :func:`render_view` as the final render's are), as many as fit PROBE_SHARE of the time left
+        before the deadline at the cost of PROBE_CALIBRATION_RAYS random ones (after 8 that take the
+        first-call overheads), at least those. Sets the curve's first cost per ray (the calibration's:
+        random pixels in one call, as the curve renders them) when none was measured yet."""
+        nonlocal curve_s_per_ray
+        t_probe = time.perf_counter()
+        render_view(model, probe_cam, pixels=calibration[:8], threads=cfg.threads)  # first-call overheads
+        cal = calibration[8:] if calibration.shape[0] > 8 else calibration
+        cal_s_per_ray = render_cost_per_ray(model, probe_cam, cal, threads=cfg.threads)
+        if not curve or curve_s_per_ray == 0.0:
+            curve_s_per_ray = cal_s_per_ray
         left = max(deadline.end - time.perf_counter(), 0.0)
-        n = int(min(128, max(8, PROBE_SHARE * left / max(warm_s_per_ray, 1e-9))))
-        rest = probe[8:8 + n]
-        cost = render_cost_per_ray(model, data.test[0].camera, rest if rest.shape[0] else probe)
+        n = int(min(probe_rows.shape[0], PROBE_SHARE * left / max(cal_s_per_ray, 1e-9)))
+        cost, rays = cal_s_per_ray, int(cal.shape[0])
+        if n > cal.shape[0]:
+            cost, rays = render_cost_per_ray(model, probe_cam, probe_rows[:n], threads=cfg.threads), n
         model.train()
+        now_ = time.perf_counter()
+        probe_log.update(n=probe_log["n"] + 1, s=probe_log["s"] + now_ - t_probe, last_at=now_,
+                         last_s=now_ - t_probe, rays=rays)
         return cost
 
     if deadline is not None:
         s_per_ray = probe_cost()
+    occ_seen = int(getattr(model, "occ_updates", 0))
     train_wall = 0.0       # wall seconds spent in steps (with a deadline)
     # a step's wall time, decaying maximum of the recent ones; before the first: its forward pass at
-    # the probe's cost per ray, backward about twice that
-    step_wall = 3.0 * s_per_ray * model.batch_rays()
+    # the calibration's cost per ray (random rays, one call), backward about twice that
+    step_wall = 3.0 * curve_s_per_ray * model.batch_rays()
     hook_wall = 0.0        # the longest schedule hook (grid upsampling, occupancy update) seen
     progress_floor = 0.0   # the schedule never goes back
 
     def remaining_train_s() -> float:
         """Wall seconds of training that still fit before the deadline (deadline mode only)."""
-        eval_s = s_per_ray * curve_rays
+        eval_s = curve_s_per_ray * curve_rays
         left = deadline.end - time.perf_counter() - deadline.after_s(s_per_ray) - step_wall - hook_wall
         return max(0.0, left) / (1.0 + eval_s / cfg.eval_every_s)  # curve evaluations due meanwhile
 
@@ -324,7 +365,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             t_eval = time.perf_counter()
             test_psnr, test_linear = _held_out_psnr(model, data, pixels)
             if curve_rays:
-                s_per_ray = (time.perf_counter() - t_eval) / curve_rays  # the model's render cost as it is now
+                curve_s_per_ray = (time.perf_counter() - t_eval) / curve_rays  # the curve's cost as it is now
             curve.append({"step": step, "train_s": round(train_s, 3), "wall_s": round(time.perf_counter() - wall0, 3),
                           "display_psnr": round(test_psnr, 4), "linear_psnr": round(test_linear, 4)})
             next_eval = train_s + cfg.eval_every_s
@@ -348,6 +389,13 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             if deadline is not None:  # larger grids render slower: measure again
                 s_per_ray = probe_cost()
                 w0 = time.perf_counter()
+        elif deadline is not None and int(getattr(model, "occ_updates", 0)) != occ_seen and \
+                time.perf_counter() - probe_log["last_at"] >= probe_log["last_s"] / PROBE_SHARE and \
+                probe_log["last_s"] <= PROBE_SHARE * (deadline.end - time.perf_counter()):
+            hook_wall = max(hook_wall, time.perf_counter() - w0)
+            s_per_ray = probe_cost()  # the occupancy moved: the render cost with it
+            occ_seen = int(model.occ_updates)
+            w0 = time.perf_counter()
         hook_wall = max(hook_wall, time.perf_counter() - w0)
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]
@@ -394,7 +442,9 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     if deadline is not None:
         plan.update(planned_train_s_last=round(train_wall + remaining_train_s(), 3), train_wall_s=round(train_wall, 3),
                     render_s_per_ray=s_per_ray, finish_s=round(time.perf_counter() - t_final, 3), stopped_by=stopped_by,
-                    curve_rays=curve_rays)
+                    curve_rays=curve_rays, curve_s_per_ray=curve_s_per_ray, probes=probe_log["n"],
+                    probe_s=round(probe_log["s"], 3), probe_rays_last=probe_log["rays"],
+                    probe_size=[k0.width, k0.height])
     return TrainResult(model, step, train_s, curve, plan)
 
 

@@ -119,6 +119,17 @@ def test_downsampled_camera_rays_hit_block_centres(tiny_capture):
     np.testing.assert_allclose(d, d2, atol=1e-12)
 
 
+def test_camera_rays_of_chosen_pixels_are_the_whole_views_rays(tiny_capture):
+    """camera_rays(camera, pixels) computes only those pixels' rays (a render probe of a few rows of a
+    capture-size view must not pay for the whole view's): bit-identical to the whole view's rays at
+    those indices, in the order given."""
+    cam = tiny_cameras()[0][0]
+    o, d = camera_rays(cam)
+    px = torch.randperm(o.shape[0], generator=torch.Generator().manual_seed(3))[:50]
+    o2, d2 = camera_rays(cam, px)
+    assert torch.equal(o2, o[px]) and torch.equal(d2, d[px])
+
+
 def test_poses_folder_replaces_train_cameras(tiny_capture, tmp_path):
     poses = tmp_path / "poses" / "gt"
     poses.mkdir(parents=True)
