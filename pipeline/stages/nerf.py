@@ -160,13 +160,15 @@ def plan_renders(s_per_ray: float, rays_at_1: int, rays_full: int, room_s: float
 
 
 def render_reserve_s(s_per_ray: float, rays_at_1: int, rays_full: int, budget_s: float, view_s: float,
-                     factors: list[int]) -> float:
+                     factors: list[int], left_s: float = math.inf) -> float:
     """Seconds reserved during training for the held-out renders at ``s_per_ray`` (the margin
     included), ``view_s`` the views' fixed cost: the render :func:`plan_renders` plans with
-    ``FULL_RES_SHARE`` (capture resolution) and ``RENDER_SHARE`` (working scale) of ``budget_s``,
-    the working scale's capped at its share (the coarsest scale when none fits)."""
+    ``FULL_RES_SHARE`` (capture resolution; only while it also fits ``left_s``, the seconds still
+    left for renders: a cost that falls late in training does not reserve more than is left) and
+    ``RENDER_SHARE`` (working scale) of ``budget_s``, the working scale's capped at its share (the
+    coarsest scale when none fits)."""
     k, full = plan_renders(s_per_ray, rays_at_1, rays_full, RENDER_SHARE * budget_s - view_s,
-                           FULL_RES_SHARE * budget_s - view_s, factors)
+                           min(FULL_RES_SHARE * budget_s, left_s) - view_s, factors)
     render = s_per_ray * (rays_at_1 / (k * k) + (rays_full if full else 0)) + view_s
     return render if full else min(render, RENDER_SHARE * budget_s)
 
@@ -262,7 +264,8 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         """Held-out renders as :func:`plan_renders` plans them (at the capture's resolution when
         that fits FULL_RES_SHARE of the budget, else at the finest evaluation scale whose cost fits
         RENDER_SHARE of it, the coarsest when none does), writing the views and the checkpoint."""
-        render = render_reserve_s(RENDER_MARGIN * s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors)
+        left = deadline_end - time.perf_counter() - write_s - ckpt_s_est
+        render = render_reserve_s(RENDER_MARGIN * s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors, left)
         return render + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={
@@ -304,7 +307,9 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         if deadline is not None:
             # the checkpoint is saved (training wrote it): what is left is copying it into the stage
             available = deadline_end - train_end - write_s - checkpoint_s(result.model) / 2 - view_s
-            k, full_res = plan_renders(s_per_ray, rays_at_1, rays_full, available, available, factors)
+            # the margin is spent now: the capture-resolution render is done when its measured cost
+            # fits (a step's overrun at the end of training does not discard the render planned)
+            k, full_res = plan_renders(s_per_ray, rays_at_1, rays_full, available, RENDER_MARGIN * available, factors)
         else:
             k = 1
         views = [_at_scale(v, k) for v in data.test]

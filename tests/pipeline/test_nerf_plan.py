@@ -53,6 +53,21 @@ def test_the_time_reserved_is_the_render_done():
     assert plan_renders(1e-9, rays_at_1, 0, 1e9, 1e9, factors) == (1, False)
 
 
+def test_a_cost_that_falls_late_reserves_no_more_than_is_left():
+    """The 4-minute case that left 58 s unused: the cost per ray falls late in training until the
+    capture-resolution render (65 s) fits the share (120 s of 240) but no longer the 62 s left.
+    The reserve stays the working scale's (training goes on); with 80 s left it is the full render."""
+    factors = eval_factors(*SMALL)
+    rays_at_1, rays_full = VIEWS * SMALL[0] * SMALL[1], VIEWS * FULL[0] * FULL[1]
+    view_s, s = 0.3 * VIEWS, 6.5e-6
+    full_cost = s * (rays_at_1 + rays_full) + view_s
+    working = s * rays_at_1 + view_s
+    assert 62.0 < full_cost < FULL_RES_SHARE * 240.0
+    assert render_reserve_s(s, rays_at_1, rays_full, 240.0, view_s, factors) == pytest.approx(full_cost)
+    assert render_reserve_s(s, rays_at_1, rays_full, 240.0, view_s, factors, left_s=62.0) == pytest.approx(working)
+    assert render_reserve_s(s, rays_at_1, rays_full, 240.0, view_s, factors, left_s=80.0) == pytest.approx(full_cost)
+
+
 def test_stage_with_render_full_res_prices_and_renders_the_capture_size_views(tmp_path):
     """`render_full_res` on a 24 s budget, training until the deadline: the render cost was probed
     on the capture-size view (32x24, the whole view: fewer pixels than a chunk), the held-out views
