@@ -12,13 +12,14 @@ Layout (DESIGN.md)::
 
 Metrics are computed at the working scale (the capture area-averaged by ``downsample``, by default
 the factor giving a width of about 160 pixels: 160x120 for the 1280x960 default scene) and, with
-the fast model's opt-in ``render_full_res``, at the capture's resolution: every capture pixel is
+the fast model's ``render_full_res`` (the default; the vanilla models repeat working-scale pixels),
+at the capture's resolution: every capture pixel is
 rendered (``FastNeRF.render_inference``: a compiled march with empty-space jumps, the dense density
 grid and early termination; colour batched in torch; chunks of rays over both cores) and
 scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. With the opt-in
 ``train_full_res`` the fast model trains on rays through the capture's own pixels, the working scale
-serving the held-out curve (both are off by default: on the default scene's 4-minute stage they
-scored 2.5 dB lower; docs/architecture.md). The full-resolution render is planned when its measured
+serving the held-out curve (off by default: with the former render, on the default scene's
+4-minute stage, the two scored 2.5 dB lower; docs/architecture.md). The full-resolution render is planned when its measured
 cost (:func:`plan_renders`) fits ``FULL_RES_SHARE`` of the budget, and done when it fits the time left
 after training; otherwise the time is planned for the working scale's render alone and the renders
 are its pixels repeated (nearest), ``render_full_res`` false under ``time.planned``. ꟻLIP and the

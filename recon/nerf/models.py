@@ -119,8 +119,10 @@ class FastConfig:
     min_rays: int = 256
     max_rays: int = 8192
     curve_pixels: int | None = 1024
-    #: held-out views rendered at every capture pixel (:meth:`FastNeRF.render_inference`)
-    render_full_res: bool = False
+    #: held-out views rendered at every capture pixel (:meth:`FastNeRF.render_inference`; the
+    #: stage falls back to the working scale's pixels repeated only when that render does not fit
+    #: its --minutes, recorded in metrics.json)
+    render_full_res: bool = True
     #: train on rays through the capture's own pixels (``recon.nerf.data.PixelSampler``) from
     #: progress ``full_res_from`` on; before it (and with False) on the working scale's averages
     train_full_res: bool = False
