@@ -19,34 +19,23 @@ def _reference(out, *extra):
                           capture_output=True, text=True, timeout=300)
 
 
-def test_sampler_is_recorded_and_changes_the_render(tmp_path):
+@pytest.mark.parametrize("integrator,samplers", [("path", (None, "independent", "sobol")),
+                                                  ("volpath", (None, "independent"))])
+def test_sampler_is_recorded_and_changes_the_render(tmp_path, integrator, samplers):
+    """path and volpath read --sampler (issue 16: sobol-blocks the default of both): recorded in the
+    manifest with its replicates, and every other sampler gives other bytes."""
     runs = {}
-    for sampler in (None, "independent", "sobol"):
+    for sampler in samplers:
         out = tmp_path / (sampler or "default") / "reference"
-        proc = _reference(out, *(["--sampler", sampler] if sampler else []))
+        proc = _reference(out, "--integrator", integrator, *(["--sampler", sampler] if sampler else []))
         assert proc.returncode == 0, proc.stderr
         manifest = json.loads((out / "manifest.json").read_text())
         assert manifest["params"]["sampler"] == (sampler or "sobol-blocks")
         # the variance image's degrees of freedom (validate's thresholds): none for independent
         assert manifest["params"]["replicates"] == (None if sampler == "independent" else 4)
         runs[sampler] = read_exr(next((out / "linear").glob("*.exr")))
-    assert np.all(np.isfinite(runs[None])) and not np.array_equal(runs[None], runs["independent"])
-    assert np.all(np.isfinite(runs["sobol"])) and not np.array_equal(runs[None], runs["sobol"])
-
-
-def test_volpath_reads_the_sampler_through_the_cli(tmp_path):
-    """volpath reads --sampler like path (issue 16: its default is sobol-blocks too): recorded in
-    the manifest with its replicates, and the independent sampler gives other bytes."""
-    runs = {}
-    for sampler in (None, "independent"):
-        out = tmp_path / (sampler or "default") / "reference"
-        proc = _reference(out, "--integrator", "volpath", *(["--sampler", sampler] if sampler else []))
-        assert proc.returncode == 0, proc.stderr
-        manifest = json.loads((out / "manifest.json").read_text())
-        assert manifest["params"]["sampler"] == (sampler or "sobol-blocks")
-        assert manifest["params"]["replicates"] == (None if sampler == "independent" else 4)
-        runs[sampler] = read_exr(next((out / "linear").glob("*.exr")))
-    assert np.all(np.isfinite(runs[None])) and not np.array_equal(runs[None], runs["independent"])
+        assert np.all(np.isfinite(runs[sampler]))
+    assert all(not np.array_equal(runs[None], runs[s]) for s in samplers if s is not None)
 
 
 @pytest.mark.parametrize("extra,names", [(["--sampler", "halton"], ["--sampler", "halton"]),
