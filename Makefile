@@ -47,7 +47,9 @@ lock: setup
 test: setup
 	$(BIN)/python -m pytest -q tests
 
+# the benchmarks against Mitsuba 3 need the bench extra (an independent production renderer)
 bench: setup
+	$(BIN)/python -m pip install -q -e '.[bench]'
 	$(BIN)/python -m bench.run_all
 
 # the DVC pipeline, with the venv's lumigraph on PATH (local cache only)

@@ -247,7 +247,8 @@ def _embree(scene, ps, ours_rays_per_s: float, ours_paths_per_s: float, cam) -> 
             "note": "bare Embree: closest-hit queries only (no shading, no shadow rays), same BVH and threads"}
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str] | None = None) -> None:
+    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
     quick = "--quick" in argv
     repeats = int(argv[argv.index("--repeats") + 1]) if "--repeats" in argv else REPEATS
     ref_spp = 1024 if quick else REF_SPP
@@ -279,6 +280,8 @@ def main(argv: list[str]) -> None:
     from bench.bench_media_mitsuba import _mitsuba
 
     mi, variant = _mitsuba()
+    if mi is None:  # the contest is against Mitsuba: without it every ratio would be missing
+        raise RuntimeError("mitsuba is not installed (pip install -e '.[bench]'; make bench does)")
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         equal = {"budgets_s": list(budgets), "quiet_budgets_s": list(BUDGETS_S), "help_s": help_s,

@@ -193,7 +193,8 @@ def volpath_main(quick: bool) -> None:
     write_result("sampler_volpath_quick" if quick else "sampler_volpath", figures)
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str] | None = None) -> None:
+    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
     quick = "--quick" in argv
     if "--volpath" in argv:
         volpath_main(quick)

@@ -135,7 +135,8 @@ def _imports(cmd: list[str]) -> dict:
             "largest_top_level_s": {n: round(c / 1e6, 3) for n, c in sorted(top.items(), key=lambda r: -r[1])[:12]}}
 
 
-def main(argv: list[str]) -> None:
+def main(argv: list[str] | None = None) -> None:
+    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
     runs = 2 if "--quick" in argv else 7
     lumigraph = [sys.executable, "-m", "pipeline"]
     with tempfile.TemporaryDirectory() as tmp:
