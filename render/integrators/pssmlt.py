@@ -4,18 +4,29 @@
 deterministic function of a point U in the primary sample space [0, 1)^D, D = 2 +
 :data:`DIMS_PER_BOUNCE` x max_depth (:func:`primary_dims`). Columns 0, 1 place the camera
 sample on the image plane (x = W u0, y = H u1, so the pixel is (floor(y), floor(x)) and the
-jitter inside it the fractional parts); scattering vertex k (0 = the first hit) reads the six
-columns 2 + 6k .. 2 + 6k + 5: light pick, light uv (2) for next-event estimation, BSDF lobe
-(glass: reflect or refract), BSDF uv (2). It follows render.integrators.path's conventions and its
-compiled kernel (render.integrators.path_kernels.shade_bounce) exactly: the same radiometry and light units,
+jitter inside it the fractional parts); scattering vertex k (0 = the first hit) owns the seven
+columns 2 + 7k .. 2 + 7k + 6: light pick, light uv (2) for next-event estimation, BSDF lobe
+(glass: reflect or refract), BSDF uv (2), Russian roulette. It follows render.integrators.path's
+conventions and its compiled kernel (render.integrators.path_kernels.shade_bounce) exactly: the same radiometry and light units,
 max_depth counts scattering events, the camera ray counts as specular (emission seen directly
 has weight 1), one-sided emitters, two-sided Lambert and mirror frames, outward dielectric
 frames, background radiance for escaping rays, next-event estimation and cosine BSDF sampling
 at Lambertian vertices combined by MIS (power heuristic by default), delta lights by NEE only,
 and without 'caustics' among the effects, emission and background reached through a specular
-chain that follows a diffuse vertex are dropped. There is no Russian roulette (the contribution
-must be a deterministic function of U), so a uniform U gives an unbiased estimate of the same
-box-filtered pixel measurement as `path`:
+chain that follows a diffuse vertex are dropped. Russian roulette is optional (``roulette=True``
+/ rr_depth not None; off by default, see below): path's policy, leaving vertex k >= rr_depth
+(3 when on, path's) the path survives with probability q = min(1, max(beta)) and is divided by
+it, the survival decided by u < q with u vertex k's roulette column (read only there). Roulette
+keeps f(U) a deterministic function of U, as every other random decision of the path (pbrt-v4's
+MLT draws its walk's roulette from its MLT sampler too), and unbiased (E over that column of the
+survivor's f / q is f). Why off by default (measured, 48 x 48, 256 mutations per pixel, variance
+x time of the render, one-off script): roulette's 1/q factors put spikes into I(U) that the
+chains find and dwell on; on the open caustic scenes of bench/bench_hard_paths.py it saves no
+time (2.43 segments per proposal either way: those paths escape, or stay in glass with beta ~1)
+and multiplies variance x time by 2.2 (0.4 m source) and 6.1 (0.1 m); on the closed Cornell box
+it cuts the time 18% for 7% more variance (13% better); on the furnace (albedo 0.5, max_depth
+16) 6.4x faster for 1.9x the variance. Either way a uniform U gives an unbiased estimate of the
+same box-filtered pixel measurement as `path`:
 
     I_p = W H E_U[ f(U) 1{pixel(U) = p} ],   f(U) the path's (3,) RGB radiance contribution.
 
@@ -119,16 +130,19 @@ from ..film import Film, RenderResult, group_ranges, whole_groups
 from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_keys, to_local, to_world, uniform_block
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
-from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat, propose,
-                             uniform_rows)
+from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat,
+                             pinhole_rays, propose, uniform_rows)
 from .volpath import VolContext, trace_primary
 
-__all__ = ["Options", "DIMS_PER_BOUNCE", "LUMINANCE", "primary_dims", "luminance", "sample_paths", "sample_paths_numpy",
-           "small_step",
+__all__ = ["Options", "DIMS_PER_BOUNCE", "RR_DEPTH", "LUMINANCE", "primary_dims", "luminance", "sample_paths",
+           "sample_paths_numpy", "small_step",
            "bootstrap", "PSSMLTResult", "render_pssmlt", "render_result", "GROUPS"]
 
-#: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2)
-DIMS_PER_BOUNCE = 6
+#: primary-sample columns per scattering vertex: light pick, light uv (2), BSDF lobe, BSDF uv (2), roulette
+DIMS_PER_BOUNCE = 7
+#: with roulette on, it applies when leaving vertices of index >= RR_DEPTH (path's default); the
+#: samplers' rr_depth None (their default) means no roulette
+RR_DEPTH = 3
 #: Rec. 709 / sRGB luminance weights of linear RGB
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 #: a tag mixed into the seed of the chains' random streams (apart from the bootstrap's keys)
@@ -140,18 +154,29 @@ _IMPORTANCE_BINS = np.array([0.1, 1.0, 10.0, 100.0])  # I / b bin edges of the a
 
 @dataclass(frozen=True)
 class Options:
-    """Options of ``pssmlt`` (RenderSettings fields of the same names; no roulette or strategy:
-    the path sampler is a deterministic function of its primary sample, NEE + BSDF sampling
-    always MIS-weighted).
+    """Options of ``pssmlt`` (RenderSettings fields of the same names; no strategy: NEE + BSDF
+    sampling always MIS-weighted).
 
     Chains, bootstrap samples and the large-step probability per group are the module's
     GROUP_CHAINS, GROUP_BOOTSTRAP and LARGE_STEP (render_pssmlt takes others)."""
 
     #: MIS weights of the path sampler: "power" or "balance" (Veach and Guibas)
     heuristic: str = "power"
+    #: Russian roulette (path's policy, its number read from the vertex's roulette column; off by
+    #: default: on the open caustic scenes it adds variance and saves no time, see the module docstring)
+    roulette: bool = False
+    #: first vertex index (0: the first hit) whose outgoing path roulette may end (with roulette on)
+    rr_depth: int = RR_DEPTH
 
     def __post_init__(self):
         check_heuristic(self.heuristic)
+        if self.rr_depth < 0:
+            raise ValueError(f"pssmlt: rr_depth must be >= 0, got {self.rr_depth}")
+
+    @property
+    def rr(self) -> int | None:
+        """The samplers' ``rr_depth`` argument: None without roulette."""
+        return int(self.rr_depth) if self.roulette else None
 
 
 def primary_dims(max_depth: int) -> int:
@@ -167,7 +192,8 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------- the primary-sample path sampler
 def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
-                 heuristic: str = "power", ctx: VolContext | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 heuristic: str = "power", ctx: VolContext | None = None,
+                 rr_depth: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Trace one camera path per row of U (N, D) float64 in [0, 1) (D >= primary_dims(max_depth)),
     in compiled code (render.integrators.volpath_kernels, every random number read from U:
     :func:`render.integrators.volpath.trace_primary`).
@@ -175,6 +201,7 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
     Returns ((N,) int64 row-major pixel index, (N, 3) float64 radiance contribution f(U)):
     with U uniform, W H f(U) 1{pixel = p} is an unbiased estimate of pixel p's box-filtered
     radiance (render.integrators.path's measurement). heuristic: MIS weights, "power" or "balance".
+    rr_depth: Russian roulette when leaving vertices of index >= rr_depth (None: none).
     See the module docstring for the column layout and conventions; :func:`sample_paths_numpy`
     is the same function in numpy (the tested reference: tests/render/test_pssmlt_compiled.py).
     ctx: a ``VolContext(ps, None)`` to reuse across calls (saves re-packing the materials).
@@ -184,16 +211,23 @@ def sample_paths(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: in
         raise ValueError(f"pssmlt: U must be (N, >= {primary_dims(max_depth)}), got {U.shape}")
     heuristic_exponent(heuristic)
     k = camera.intrinsics
-    x, y = U[:, 0] * k.width, U[:, 1] * k.height
-    pix = np.minimum(y.astype(np.int64), k.height - 1) * k.width + np.minimum(x.astype(np.int64), k.width - 1)
+    if not k.has_distortion:  # the pinhole rays in one compiled pass (pixel_rays' arithmetic)
+        c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
+        pix, o, d = pinhole_rays(U, k.width, k.height, float(k.fx), float(k.fy), float(k.cx), float(k.cy),
+                                 np.ascontiguousarray(c2w[:3, :3]), np.ascontiguousarray(c2w[:3, 3]))
+    else:
+        x, y = U[:, 0] * k.width, U[:, 1] * k.height
+        pix = np.minimum(y.astype(np.int64), k.height - 1) * k.width + np.minimum(x.astype(np.int64), k.width - 1)
+        if len(U) == 0:
+            return pix, np.zeros((0, 3))
+        o, d = camera.pixel_rays(np.stack([x, y], axis=1))
     if len(U) == 0:
         return pix, np.zeros((0, 3))
-    o, d = camera.pixel_rays(np.stack([x, y], axis=1))
-    return pix, trace_primary(ps, o, d, U, max_depth, caustics, heuristic, ctx)
+    return pix, trace_primary(ps, o, d, U, max_depth, caustics, heuristic, ctx, rr_depth)
 
 
 def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_depth: int, caustics: bool = True,
-                       heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
+                       heuristic: str = "power", rr_depth: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`sample_paths` in numpy (a wavefront: one Embree query per bounce for all rows, one
     occlusion query for their shadow rays), kept as the tested reference."""
     U = np.asarray(U, dtype=np.float64)
@@ -284,7 +318,13 @@ def sample_paths_numpy(ps: PreparedScene, camera: Camera, U: np.ndarray, max_dep
         wo = to_local(-d, t1, t2, nrm)
         bs = bsdf_sample(kind, alb, mats.ior[obj], wo, cols[:, 3], cols[:, 4:6])
         beta = beta * bs.weight
-        ok = bs.valid & (max3(beta) > 0)
+        ok = bs.valid
+        if rr_depth is not None and depth >= rr_depth:  # path's roulette, its number from column 6
+            q = np.minimum(1.0, max3(beta))
+            live = cols[:, 6] < q
+            beta = beta / np.where(live, q, 1.0)[:, None]
+            ok = ok & live
+        ok = ok & (max3(beta) > 0)
         s = np.nonzero(ok)[0]
         wi = to_world(bs.wi[s], t1[s], t2[s], nrm[s])
         o = spawn_origin(p[s], ng[s], wi, extent)
@@ -318,9 +358,9 @@ def _sanitize(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return f, bad
 
 
-def _evaluate(ps, camera, U, max_depth, caustics, heuristic, ctx=None):
+def _evaluate(ps, camera, U, max_depth, caustics, heuristic, ctx=None, rr_depth=None):
     """sample_paths plus the importance, with non-finite contributions zeroed (and counted)."""
-    pix, f = sample_paths(ps, camera, U, max_depth, caustics, heuristic, ctx)
+    pix, f = sample_paths(ps, camera, U, max_depth, caustics, heuristic, ctx, rr_depth)
     f, bad = _sanitize(f)
     return pix, f, luminance(f), int(bad.sum())
 
@@ -330,7 +370,8 @@ def _bootstrap_keys(seed: int, group: int, n: int) -> np.ndarray:
 
 
 def _bootstraps(ps: PreparedScene, camera: Camera, groups, n: int, max_depth: int, seed: int, caustics: bool,
-                heuristic: str, ctx: VolContext | None = None) -> tuple[np.ndarray, np.ndarray]:
+                heuristic: str, ctx: VolContext | None = None,
+                rr_depth: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bootstraps of several groups, traced together in chunks (every row is a pure function
     of its primary sample, so a group's values do not depend on the others). Returns
     ((G, n) uint64 keys, (G, n) float64 importance)."""
@@ -339,17 +380,19 @@ def _bootstraps(ps: PreparedScene, camera: Camera, groups, n: int, max_depth: in
     imp = np.zeros(len(keys))
     for c in range(0, len(keys), _BOOT_CHUNK):
         kk = keys[c:c + _BOOT_CHUNK]
-        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_rows(kk, 0, D), max_depth, caustics, heuristic, ctx)[2]
+        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_rows(kk, 0, D), max_depth, caustics, heuristic, ctx,
+                                       rr_depth)[2]
     return keys.reshape(len(groups), n), imp.reshape(len(groups), n)
 
 
 def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: int = 0, group: int = 0,
-              caustics: bool = True, heuristic: str = "power") -> tuple[np.ndarray, np.ndarray]:
+              caustics: bool = True, heuristic: str = "power",
+              rr_depth: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bootstrap of one group: n uniform primary samples (the counter-based hash of
     render.sampling keyed by (seed, group, index)). Returns ((n,) uint64 keys, (n,) float64
     importance I). b = I.mean() estimates E_U[I] = the mean image luminance; row i's sample is
     ``uniform_block(keys[i:i+1], 0, primary_dims(max_depth))``."""
-    keys, imp = _bootstraps(ps, camera, [group], n, max_depth, seed, caustics, heuristic)
+    keys, imp = _bootstraps(ps, camera, [group], n, max_depth, seed, caustics, heuristic, rr_depth=rr_depth)
     return keys[0], imp[0]
 
 
@@ -447,7 +490,8 @@ def _new_run(b: float, cpg: int, steps: int, n_bootstrap: int, npix: int) -> _Gr
 
 
 def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: int, chains: int, n_bootstrap: int,
-                     max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> _GroupRun:
+                     max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str,
+                     rr_depth: int | None = None) -> _GroupRun:
     """Group ``group`` with its chains in numpy, vectorized over them: the tested reference of the
     compiled chains (:func:`_run_groups`), the same random numbers and arithmetic (equal images up
     to the order of the splat sums). Its bootstrap (n_bootstrap samples keyed by (seed, group)),
@@ -458,13 +502,13 @@ def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: i
     npix = k.width * k.height
     D = primary_dims(max_depth)
     cpg, steps = _group_shape(chains, mutations)
-    keys, imp = bootstrap(ps, camera, n_bootstrap, max_depth, seed, group, caustics, heuristic)
+    keys, imp = bootstrap(ps, camera, n_bootstrap, max_depth, seed, group, caustics, heuristic, rr_depth)
     run = _new_run(float(imp.mean()), cpg, steps, n_bootstrap, npix)
     if run.b <= 0:  # no light found: the group runs no chain and its image is black
         return run
     b = run.b
     X = _chain_starts(keys, imp, group, seed, cpg, D)
-    pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic)
+    pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic, rr_depth=rr_depth)
     run.nonfinite += bad
     ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
     X, pix_x, f_x, I_x = X[ok], pix_x[ok], f_x[ok], I_x[ok]
@@ -477,7 +521,7 @@ def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: i
         u = uniform_block(ckeys, step * (D + 2), D + 2)
         large = u[:, 0] < large_step
         Y = np.where(large[:, None], u[:, 1:D + 1], small_step(X, u[:, 1:D + 1]))
-        pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic)
+        pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic, rr_depth=rr_depth)
         run.nonfinite += bad
         a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
         # Kelemen's estimator: expected-value splats, balance heuristic with the large steps
@@ -507,7 +551,8 @@ def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: i
 
 
 def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]], chains: int, n_bootstrap: int,
-                max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str) -> list[_GroupRun]:
+                max_depth: int, seed: int, large_step: float, caustics: bool, heuristic: str,
+                rr_depth: int | None = None) -> list[_GroupRun]:
     """Groups ``specs`` = [(group, mutations), ...] with compiled chains
     (render.integrators.pssmlt_kernels), a wavefront over every chain of every group: one path
     sampler call per step for all of them. Each group is the pure function of its arguments that
@@ -518,7 +563,7 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
     D = primary_dims(max_depth)
     ctx = VolContext(ps, None)
     groups = [int(g) for g, _ in specs]
-    keys, imp = _bootstraps(ps, camera, groups, n_bootstrap, max_depth, seed, caustics, heuristic, ctx)
+    keys, imp = _bootstraps(ps, camera, groups, n_bootstrap, max_depth, seed, caustics, heuristic, ctx, rr_depth)
     runs, starts = [], []
     for i, (g, mutations) in enumerate(specs):
         cpg, steps = _group_shape(chains, mutations)
@@ -527,7 +572,7 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
     X = np.concatenate(starts) if starts else np.zeros((0, D))
     owner = np.repeat(np.arange(len(specs)), [len(x) for x in starts])
     index_in_group = np.concatenate([np.arange(len(x)) for x in starts]) if starts else np.zeros(0, np.int64)
-    pix_x, f_x = sample_paths(ps, camera, X, max_depth, caustics, heuristic, ctx)
+    pix_x, f_x = sample_paths(ps, camera, X, max_depth, caustics, heuristic, ctx, rr_depth)
     f_x, bad = _sanitize(f_x)
     for i in range(len(specs)):
         runs[i].nonfinite += int((bad & (owner == i)).sum())
@@ -554,7 +599,7 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
             active = active[steps_of[owner[active]] > step]
         m = len(active)
         propose(X, active, ckeys, step, large_step, Y, large)
-        pix_y, f_y = sample_paths(ps, camera, Y[:m], max_depth, caustics, heuristic, ctx)
+        pix_y, f_y = sample_paths(ps, camera, Y[:m], max_depth, caustics, heuristic, ctx, rr_depth)
         accept_and_splat(active, ckeys, step, large_step, owner, b, X, pix_x, f_x, I_x, Y, large, pix_y,
                          np.ascontiguousarray(f_y), image, rejections, moved, *counters, *bins, nonfinite)
     for i, r in enumerate(runs):
@@ -571,16 +616,17 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
 
 def _run_groups_threaded(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]], chains: int,
                          n_bootstrap: int, max_depth: int, seed: int, large_step: float, caustics: bool,
-                         heuristic: str, threads: int) -> list[_GroupRun]:
+                         heuristic: str, threads: int, rr_depth: int | None = None) -> list[_GroupRun]:
     """:func:`_run_groups` with the groups dealt round-robin to ``threads`` threads (each its own
     wavefront; the kernels and Embree release the GIL). The same runs, in spec order, whatever
     the threads."""
     parts = [specs[i::threads] for i in range(min(max(int(threads), 1), len(specs)))]
     if len(parts) <= 1:
-        return _run_groups(ps, camera, specs, chains, n_bootstrap, max_depth, seed, large_step, caustics, heuristic)
+        return _run_groups(ps, camera, specs, chains, n_bootstrap, max_depth, seed, large_step, caustics, heuristic,
+                           rr_depth)
     with ThreadPoolExecutor(len(parts)) as pool:
         done = list(pool.map(lambda part: _run_groups(ps, camera, part, chains, n_bootstrap, max_depth, seed,
-                                                      large_step, caustics, heuristic), parts))
+                                                      large_step, caustics, heuristic, rr_depth), parts))
     runs = [None] * len(specs)
     for i, part_runs in enumerate(done):
         runs[i::len(parts)] = part_runs
@@ -597,7 +643,7 @@ def _check_arguments(spp: int, max_depth: int, large_step: float) -> None:
 def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int = 0,
                   prepared: PreparedScene | None = None, chains: int = 4096, large_step: float = 0.3,
                   n_bootstrap: int = 100_000, groups: int = 16, effects=None, heuristic: str = "power",
-                  threads: int = 2) -> PSSMLTResult:
+                  threads: int = 2, rr_depth: int | None = None) -> PSSMLTResult:
     """Render ``camera``'s view of ``scene`` by primary-sample-space Metropolis light transport.
 
     spp: mutations per pixel on average (spp x W x H proposals in all, split evenly over the
@@ -608,7 +654,8 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     groups (the bytes do not depend on them). large_step: probability
     p_large of a large step (0 <= p_large <= 1). effects: effects to simulate (default
     scene_effects(scene)); without 'caustics', caustic paths are dropped as in
-    render.integrators.path. heuristic: MIS weights, "power" or "balance". Returns a :class:`PSSMLTResult`.
+    render.integrators.path. heuristic: MIS weights, "power" or "balance". rr_depth: Russian
+    roulette when leaving vertices of index >= rr_depth (None: none). Returns a :class:`PSSMLTResult`.
     """
     t0 = time.perf_counter()
     spp, max_depth, groups = int(spp), int(max_depth), int(groups)
@@ -624,7 +671,7 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     total = spp * k.width * k.height
     specs = [(g, max(1, (g + 1) * total // groups - g * total // groups)) for g in range(groups)]
     runs = _run_groups_threaded(ps, camera, specs, max(1, int(chains) // groups), int(n_bootstrap) // groups,
-                                max_depth, seed, float(large_step), "caustics" in eff, heuristic, threads)
+                                max_depth, seed, float(large_step), "caustics" in eff, heuristic, threads, rr_depth)
     return _result(runs, k.height, k.width, float(large_step), t0)
 
 
@@ -664,21 +711,25 @@ def _result(runs: list[_GroupRun], h: int, w: int, large_step: float, t0: float)
 #: and each group's chains and bootstrap samples (render_pssmlt's defaults divided by 16 groups)
 GROUPS = 16
 GROUP_CHAINS = 4096 // GROUPS
-GROUP_BOOTSTRAP = 100_000 // GROUPS
+GROUP_BOOTSTRAP = 100_000 // GROUPS  # not to be cut for speed: see the note below
+# The bootstrap is a fixed cost (16 x 6250 paths; beside 147 456 mutations at 48 x 48 and 64
+# spp, ~30% of the render), but b's error dominates a group image's error on the caustic scenes
+# of bench/bench_hard_paths.py: a group image's mean tracks its b (CV of the 16 group means =
+# CV of the b_g, 0.05-0.11 at 6250 samples per group, 0.22-0.29 at 1152; 256 mutations per
+# pixel, seeds 11-14, one-off script), so 1152 per group multiplied the variance 3-8x at equal
+# spp (measured, session 32).
 #: probability of a large step (Kelemen's p_large; render_pssmlt's default)
 LARGE_STEP = 0.3
-
-
 def render_result(scene, camera: Camera, settings: RenderSettings, options: Options, sample_range: tuple[int, int],
                   effects: frozenset, prepared: PreparedScene, progress=None) -> RenderResult:
     """PSSMLT as a :class:`render.film.RenderResult` (the registry's interface; progress unused):
-    spp = mutations per pixel, settings.max_depth and .seed, options.heuristic.
+    spp = mutations per pixel, settings.max_depth and .seed, options.heuristic, .roulette and .rr_depth.
 
     A render of settings.spp is split into K = min(:data:`GROUPS`, spp) independent chain groups
     over its sample range (:func:`render.film.group_ranges`); group g of samples [a_g, b_g)
     runs (b_g - a_g) W H mutations with :data:`GROUP_CHAINS` chains and its own bootstrap of
-    :data:`GROUP_BOOTSTRAP` samples. ``sample_range`` must start and end on group boundaries
-    (ValueError naming pssmlt otherwise, which also refuses refine()). The film holds each
+    :data:`GROUP_BOOTSTRAP` samples. ``sample_range`` must start and end on group boundaries (ValueError naming pssmlt otherwise,
+    which also refuses refine()). The film holds each
     group's image as one sample per pixel (n = groups), so its mean and variance are the mean of
     the group images and the variance of that mean, and renders of whole groups merge exactly in
     group order. stats (additive): time_s, paths, nonfinite, groups, groups_without_light,
@@ -697,7 +748,7 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
              "proposed": 0, "accepted": 0}
     specs = [(first.index(g0), (g1 - g0) * npix) for g0, g1 in ranges]
     runs = _run_groups_threaded(ps, camera, specs, GROUP_CHAINS, GROUP_BOOTSTRAP, settings.max_depth, settings.seed,
-                                LARGE_STEP, "caustics" in effects, options.heuristic, settings.threads)
+                                LARGE_STEP, "caustics" in effects, options.heuristic, settings.threads, options.rr)
     for run in runs:
         if not np.all(np.isfinite(run.image)):
             raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")

@@ -22,7 +22,8 @@ from numba import njit
 
 from .path_kernels import _uniform
 
-__all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose", "uniform_rows", "accept_and_splat"]
+__all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose", "uniform_rows", "accept_and_splat",
+           "pinhole_rays"]
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -140,3 +141,28 @@ def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_
             rejections[c] += 1
             if rejections[c] > g_longest[g]:
                 g_longest[g] = rejections[c]
+
+
+@njit(**_JIT)
+def pinhole_rays(U, width, height, fx, fy, cx, cy, R, t):
+    """The camera rays of primary samples U (N, >= 2) through an undistorted pinhole camera
+    (intrinsics fx, fy, cx, cy; camera-to-world rotation R (3, 3) and centre t (3,)): the
+    image-plane point (x, y) = (width u0, height u1), its row-major pixel (N,) int64 and the
+    ray's origin and unit direction (N, 3) float64 (render.camera.Camera.pixel_rays' arithmetic,
+    in one pass instead of its numpy temporaries)."""
+    n = U.shape[0]
+    pix = np.empty(n, np.int64)
+    o = np.empty((n, 3))
+    d = np.empty((n, 3))
+    for i in range(n):
+        x = U[i, 0] * width
+        y = U[i, 1] * height
+        pix[i] = min(np.int64(y), height - 1) * width + min(np.int64(x), width - 1)
+        a = (x - cx) / fx
+        b = (y - cy) / fy
+        inv = 1.0 / math.sqrt(a * a + b * b + 1.0)
+        a, b, c = a * inv, b * inv, inv
+        for j in range(3):
+            d[i, j] = a * R[j, 0] + b * R[j, 1] + c * R[j, 2]
+            o[i, j] = t[j]
+    return pix, o, d

@@ -69,7 +69,7 @@ class RenderSettings:
     Integrator options (None: the chosen integrator's default; given to an integrator whose
     ``Options`` lacks the field: ValueError naming the option and the integrator):
     roulette / rr_depth: Russian roulette when leaving vertices of index >= rr_depth (path,
-    volpath, bdpt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
+    volpath, bdpt, pssmlt). strategy: "mis", "light" or "bsdf" (direct, path, volpath). heuristic:
     "power" or "balance" (direct, path, volpath, bdpt, pssmlt). photons_per_pass: sppm only.
     sampler: "sobol-blocks" (one Owen-scrambled Sobol sequence per pixel, variance from its blocks
     under a fitted power law, render.film.blocks_variance; their default), "sobol" (R interleaved

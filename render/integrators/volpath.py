@@ -626,17 +626,19 @@ def _wavefront(ctx: VolContext, comp: _Compiled, cfg: VolConfig, cur: tuple, mid
 
 
 def trace_primary(ps: PreparedScene, o: np.ndarray, d: np.ndarray, U: np.ndarray, max_depth: int, caustics: bool,
-                  heuristic: str, ctx: VolContext | None = None) -> np.ndarray:
+                  heuristic: str, ctx: VolContext | None = None, rr_depth: int | None = None) -> np.ndarray:
     """Radiance (N, 3) along rays o, d (N, 3) of a scene without media, every random number read
-    from the primary samples U (N, D) float64 in [0, 1) (D >= 2 + 6 max_depth; columns 0, 1 are
-    the caller's, vertex k reads 2 + 6k .. 7 + 6k: light pick, light point (2), lobe, direction
-    (2)): the compiled kernels as render.integrators.pssmlt's path sampler (no roulette, NEE +
-    BSDF sampling MIS-weighted, path's pruning of caustics). ctx: a ``VolContext(ps, None)`` to
-    reuse across calls (its packed materials are built once)."""
+    from the primary samples U (N, D) float64 in [0, 1) (D >= 2 + 7 max_depth; columns 0, 1 are
+    the caller's, vertex k owns 2 + 7k .. 8 + 7k: light pick, light point (2), lobe, direction
+    (2), roulette): the compiled kernels as render.integrators.pssmlt's path sampler (NEE + BSDF
+    sampling MIS-weighted, path's pruning of caustics; path's roulette when leaving vertices of
+    index >= rr_depth, none when rr_depth is None). ctx: a ``VolContext(ps, None)`` to reuse
+    across calls (its packed materials are built once)."""
     ctx = ctx if ctx is not None else VolContext(ps, None)
     comp = _compiled_of(ctx)
     n = len(o)
-    cfg = VolConfig(max_depth=int(max_depth), rr_depth=0, roulette=False, caustics=bool(caustics),
+    cfg = VolConfig(max_depth=int(max_depth), rr_depth=int(rr_depth or 0), roulette=rr_depth is not None,
+                    caustics=bool(caustics),
                     strategy=_STRATEGY_CODES["mis"], mis_exponent=heuristic_exponent(heuristic),
                     has_bg=bool(ps.background.max() > 0), has_media=False, has_lights=not ps.lights.empty,
                     path_rules=True)

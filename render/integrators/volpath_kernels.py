@@ -50,7 +50,8 @@ depend on threads, batches or the order of paths in the wavefront, and disjoint 
 merge exactly.
 
 pssmlt's path sampler runs the same kernels with every number read from a primary sample U
-instead (``vol_bounce``'s U; six dimensions per vertex, no roulette, no media) and path's rules
+instead (``vol_bounce``'s U; seven dimensions per vertex, the last one roulette's, read only
+when roulette applies; no media) and path's rules
 (:attr:`VolConfig.path_rules`): render.integrators.volpath.trace_primary.
 
 A majorant below the extinction found at a collision stops the path and records the medium in
@@ -589,9 +590,9 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
 
     ks: path_kernels.KernelScene; m_alpha (M,), m_eta, m_k (M, 3): GGX parameters; md:
     :class:`MediaKernel`; cfg: :class:`VolConfig`. U: (N0, D) primary samples read instead of
-    the hash (row = the path's slot; shape (0, 0): the hash), without media or roulette: each
-    vertex reads 6 dimensions, light pick, light point (2), lobe, direction (2), as
-    render.integrators.pssmlt's layout. prim, tfar, hu, hv: Embree surface hits;
+    the hash (row = the path's slot; shape (0, 0): the hash), without media: each vertex owns 7
+    dimensions, light pick, light point (2), lobe, direction (2), roulette (read when cfg.roulette
+    and the vertex's index >= cfg.rr_depth), as render.integrators.pssmlt's layout. prim, tfar, hu, hv: Embree surface hits;
     bprim, btfar: media-boundary hits (unread without media). L (paths, 3) accumulates in place.
     Survivors go compacted, in order, to n_*; shadow rays to q_* (origin, direction, tmax as
     Embree reads them; q_ints (N, 3) [slot, medium, 0]; q_keys their own RNG keys; q_val the
@@ -844,6 +845,8 @@ def vol_bounce(ks, m_alpha, m_eta, m_k, md, cfg, U, prim, tfar, hu, hv, bprim, b
             if not u < q:
                 continue
             b0, b1, b2 = b0 / q, b1 / q, b2 / q
+        elif U.shape[0] > 0:
+            dim += 1  # pssmlt's fixed layout: every vertex owns its roulette column, read or not
         if not max(max(b0, b1), b2) > 0.0:
             continue
         n_ints[nn, 0], n_ints[nn, 1], n_ints[nn, 2], n_ints[nn, 3] = slot, dim, bounces, mid

@@ -25,7 +25,7 @@ USES = {
     "volpath": {"roulette", "rr_depth", "strategy", "heuristic", "sampler"},
     "bdpt": {"roulette", "rr_depth", "heuristic"},
     "sppm": {"photons_per_pass"},
-    "pssmlt": {"heuristic"},
+    "pssmlt": {"heuristic", "roulette", "rr_depth"},
     "irradiance_cache": {"error_bound", "record_rays", "min_spacing", "max_spacing", "lookup_spp", "cache_direct", "roulette",
                          "rr_depth", "heuristic"},
 }
