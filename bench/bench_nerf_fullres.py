@@ -1,8 +1,9 @@
 """The fast NeRF at the capture's resolution: training on the working scale's averages (160x120,
-the former default) against training on rays through the capture's own pixels (``train_full_res``),
-at equal step counts, scored where the issue asks: display PSNR (8-bit sRGB) of the held-out views at
-the capture's resolution and at 1/8 scale (the working scale, ground truth area-averaged in linear
-light), and the held-out render's cost per capture pixel (``FastNeRF.render_inference``).
+the former default) against training on rays through the capture's own pixels (``train_full_res``)
+and the coarse-to-fine schedule (``pixel_schedule`` with ``app_res_final``), at equal step counts,
+scored where the issue asks: display PSNR (8-bit sRGB) of the held-out views at the capture's
+resolution and at 1/8 scale (the working scale, ground truth area-averaged in linear light), and
+the held-out render's cost per capture pixel (``FastNeRF.render_inference``).
 
 Capture-resolution PSNR is estimated on ``--pixels`` random pixels per held-out view (the mean of
 squared errors over a uniform pixel sample is unbiased for the whole view's MSE; the same pixels for
@@ -48,10 +49,14 @@ def main(argv=None) -> int:
     ap.add_argument("capture_dir")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--pixels", type=int, default=20000, help="random capture pixels per held-out view")
-    ap.add_argument("--variants", default="working,pixels")
+    ap.add_argument("--variants", default="working,pixels,c2f")
     a = ap.parse_args(argv)
     data = load_data(a.capture_dir, train_full=True)
-    variants = {"working": (("train_full_res", False),), "pixels": (("train_full_res", True),)}
+    former = (("pixel_schedule", ()), ("app_res_final", 0), ("app_upsample_at", ()))
+    variants = {"working": former + (("train_full_res", False),), "pixels": former + (("train_full_res", True),),
+                # coarse-to-fine pixels with appearance planes grown past the density's (session 32's default)
+                "c2f": (("pixel_schedule", ((0.4, 4), (0.6, 2), (0.8, 1))), ("app_res_final", 400),
+                        ("app_upsample_at", (0.5,)))}
     rows = {}
     for name in a.variants.split(","):
         load0 = os.getloadavg()[0]

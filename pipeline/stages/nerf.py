@@ -16,10 +16,11 @@ the fast model's ``render_full_res`` (the default; the vanilla models repeat wor
 at the capture's resolution: every capture pixel is
 rendered (``FastNeRF.render_inference``: a compiled march with empty-space jumps, the dense density
 grid and early termination; colour batched in torch; chunks of rays over both cores) and
-scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``. With the opt-in
-``train_full_res`` the fast model trains on rays through the capture's own pixels, the working scale
-serving the held-out curve (off by default: with the former render, on the default scene's
-4-minute stage, the two scored 2.5 dB lower; docs/architecture.md). The full-resolution render is planned when its measured
+scored as ``display_psnr_full`` / ``display_ssim_full`` / ``linear_psnr_full``, and the working
+scale's figures are then that render area-averaged as the reference is (``display_psnr_point``: one
+ray per working pixel). The fast model trains coarse to fine (``FastConfig.pixel_schedule``: the
+working scale, then the capture area-averaged by 4 and 2, then its own pixels), the working scale
+serving the held-out curve (docs/architecture.md). The full-resolution render is planned when its measured
 cost (:func:`plan_renders`) fits ``FULL_RES_SHARE`` of the budget, and done when it fits the time left
 after training; otherwise the time is planned for the working scale's render alone and the renders
 are its pixels repeated (nearest), ``render_full_res`` false under ``time.planned``. ꟻLIP and the
@@ -87,7 +88,7 @@ from .capture import check_capture_folder
 from .poses import check_poses
 
 __all__ = ["NerfStageConfig", "run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
-           "plan_renders", "render_reserve_s", "RENDER_SHARE", "FULL_RES_SHARE", "WRITE_S_PER_MPIX"]
+           "plan_renders", "render_reserve_s", "RenderReserve", "RENDER_SHARE", "FULL_RES_SHARE", "WRITE_S_PER_MPIX"]
 
 #: curve.csv's columns: training step, training seconds, wall seconds since training began, held-out
 #: display PSNR (8-bit sRGB) and linear PSNR (dB)
@@ -174,6 +175,34 @@ def render_reserve_s(s_per_ray: float, rays_at_1: int, rays_full: int, budget_s:
     return render if full else min(render, RENDER_SHARE * budget_s)
 
 
+class RenderReserve:
+    """:func:`render_reserve_s` for one stage, called with each new cost per ray (margin included)
+    and the seconds left: once the capture-resolution render has been reserved it stays reserved
+    while it fits ``FULL_RES_SHARE``, even when a later probe prices it above what is left (training
+    then stops at once and the stage decides after training, the margin spent). Why: training runs
+    until the time left is the reserve, so any later probe that measures a little more (a loaded
+    machine) used to drop the capture-resolution render for the working scale's pixels and give its
+    time to training (measured: a 3.5-minute stage, load 4-5, trained to 2 s before its deadline
+    and wrote pixel repeats)."""
+
+    def __init__(self, rays_at_1: int, rays_full: int, budget_s: float, view_s: float, factors: list[int]):
+        self.args = (rays_at_1, rays_full, budget_s, view_s, factors)
+        self.full_held = False
+
+    def __call__(self, s_per_ray: float, left_s: float = math.inf) -> float:
+        rays_at_1, rays_full, budget_s, view_s, factors = self.args
+        render = render_reserve_s(s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors, left_s)
+        if rays_full:
+            by_share = render_reserve_s(s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors)
+            full_fits_share = plan_renders(s_per_ray, rays_at_1, rays_full, RENDER_SHARE * budget_s - view_s,
+                                           FULL_RES_SHARE * budget_s - view_s, factors)[1]
+            if full_fits_share and (self.full_held or render == by_share):
+                self.full_held = True
+                return by_share
+            self.full_held = False
+        return render
+
+
 def _at_scale(view: View, k: int) -> View:
     """``view`` evaluated k times coarser: camera scaled by 1/k, reference area-averaged by k."""
     if k == 1:
@@ -228,7 +257,8 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         check_poses(poses_dir, capture_dir, cams, splits)
     if reference_dir is not None and not Path(reference_dir).is_dir():
         raise BadInput(f"--reference {reference_dir}: no such folder")
-    train_full = bool(getattr(replace(MODELS[model][1], **dict(overrides or {})), "train_full_res", False))
+    cfg_now = replace(MODELS[model][1], **dict(overrides or {}))
+    train_full = bool(cfg_now.needs_full_images()) if hasattr(cfg_now, "needs_full_images") else False
     try:
         data = load_data(capture_dir, poses_dir, reference_dir, downsample, train_full=train_full)
     except NerfInputError as exc:
@@ -261,13 +291,15 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
 
     view_s = VIEW_OVERHEAD_S * len(data.test)
 
+    reserve = RenderReserve(rays_at_1, rays_full, budget_s, view_s, factors)
+
     def after_training_s(s_per_ray: float) -> float:
         """Held-out renders as :func:`plan_renders` plans them (at the capture's resolution when
         that fits FULL_RES_SHARE of the budget, else at the finest evaluation scale whose cost fits
-        RENDER_SHARE of it, the coarsest when none does), writing the views and the checkpoint."""
+        RENDER_SHARE of it, the coarsest when none does; :class:`RenderReserve`), writing the views
+        and the checkpoint."""
         left = deadline_end - time.perf_counter() - write_s - ckpt_s_est
-        render = render_reserve_s(RENDER_MARGIN * s_per_ray, rays_at_1, rays_full, budget_s, view_s, factors, left)
-        return render + write_s + ckpt_s_est
+        return reserve(RENDER_MARGIN * s_per_ray, left) + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={
         "model": model, "minutes": minutes, "clock": clock, "max_steps": max_steps, "seed": seed,
@@ -293,8 +325,9 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
 
         t_train = time.perf_counter()
         if clock == "wall":  # the grids grow from res_init to res_final (fast model): the saved state with them
-            growth = (getattr(model_cfg, "res_final", 1) / getattr(model_cfg, "res_init", 1)) ** 2
-            ckpt_s_est = growth * checkpoint_s(make_model(model, data.lo, data.hi, seed, model_cfg))
+            m0 = make_model(model, data.lo, data.hi, seed, model_cfg)
+            ckpt_s_est = (2.0 * 3.0 * m0.param_bytes_final() / CHECKPOINT_BYTES_PER_S if hasattr(m0, "param_bytes_final")
+                          else checkpoint_s(m0))
         deadline = (Deadline(deadline_end, after_training_s, data.test[0].full_camera if full_res else None)
                     if clock == "wall" else None)
         result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)
@@ -352,6 +385,10 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         if full_res:
             for k_ in ("display_psnr", "display_ssim", "linear_psnr"):
                 metrics[f"{k_}_full_mean"] = float(np.mean([r[f"{k_}_full"] for r in rows]))
+            # the working scale's figures above are the capture-size render area-averaged as the
+            # reference is; one ray per working pixel (the former figure, aliased) beside them
+            metrics["display_psnr_point_mean"] = float(np.mean([r["display_psnr_point"] for r in rows]))
+            metrics["scale"] += "; the render: capture-size, area-averaged"
         if deadline is not None:
             metrics["time"] = {
                 "budget_s": round(budget_s, 3),

@@ -135,17 +135,28 @@ def stack_rays(views: list[View]) -> tuple[torch.Tensor, torch.Tensor, torch.Ten
 
 
 class PixelSampler:
-    """Training rays through the capture's own pixels (not the working scale's averages): random
-    (view, row, col) triples drawn uniformly over every pixel of ``views``' ``full_rgb`` (all the
-    same size), the ray through that pixel's centre (``Camera.pixel_rays``: distortion inverted
-    exactly) and its linear colour. Images are kept as float16 (a relative rounding of 5e-4,
-    below the 8-bit display step of any radiance above 0.002): (V, H, W, 3)."""
+    """Training rays through the capture's own pixels (not the working scale's averages), or through
+    the pixels of the capture area-averaged by ``factor`` (a level of a pyramid: what a sensor with
+    factor x larger pixels records; the camera scaled by 1 / factor, as the working scale's is):
+    random (view, row, col) triples drawn uniformly over every pixel of ``views``' ``full_rgb``
+    (all the same size) at that level, the ray through that pixel's centre (``Camera.pixel_rays``:
+    distortion inverted exactly) and its linear colour. Images are kept as float16 (a relative
+    rounding of 5e-4, below the 8-bit display step of any radiance above 0.002): (V, H, W, 3)."""
 
-    def __init__(self, views: list[View]):
+    def __init__(self, views: list[View], factor: int = 1):
         if not views or any(v.full_rgb is None for v in views):
             raise ValueError("PixelSampler needs the views' full-resolution images (load_data(..., train_full=True))")
-        self.cameras = [v.full_camera for v in views]
-        self.images = torch.from_numpy(np.stack([np.asarray(v.full_rgb, dtype=np.float16) for v in views]))
+        if int(factor) != factor or factor < 1:
+            raise ValueError(f"PixelSampler factor must be an integer >= 1, got {factor}")
+        self.factor = int(factor)
+        if self.factor == 1:
+            self.cameras = [v.full_camera for v in views]
+            self.images = torch.from_numpy(np.stack([np.asarray(v.full_rgb, dtype=np.float16) for v in views]))
+        else:
+            self.cameras = [Camera(v.full_camera.intrinsics.scaled(1.0 / self.factor), v.full_camera.cam_to_world,
+                                   v.full_camera.name) for v in views]
+            self.images = torch.from_numpy(np.stack([area_downsample(v.full_rgb, self.factor).astype(np.float16)
+                                                     for v in views]))
         self.height, self.width = int(self.images.shape[1]), int(self.images.shape[2])
 
     @property

@@ -95,7 +95,9 @@ class FastConfig:
     Measured on the default scene (4 min on 2 idle cores, held-out PSNR at 160x120): the paper's
     48 x 300 grids with 65536 points 28.3 dB (457 steps); 24 x 200 with 65536 points 31.4 dB (860
     steps); 24 x 200 with 16384 points 31.6 dB (1279 steps); 48 x 300 with 16384 points 25.8 dB
-    (357 steps)."""
+    (357 steps). Coarse to fine (session 32; ``pixel_schedule``, ``app_res_final``): on the default
+    scene's 10-minute stage (load 4) display PSNR at the capture's 1280x960 25.77 dB against 21.29
+    training on the working scale throughout (docs/architecture.md)."""
 
     res_init: int = 128
     res_final: int = 200
@@ -127,7 +129,20 @@ class FastConfig:
     #: progress ``full_res_from`` on; before it (and with False) on the working scale's averages
     train_full_res: bool = False
     full_res_from: float = 0.0
+    #: coarse-to-fine training pixels: (progress, factor) pairs, progress ascending; from each
+    #: progress on, training rays come from the capture area-averaged by factor (1: its own pixels;
+    #: ``recon.nerf.data.PixelSampler``), before the first from the working scale
+    pixel_schedule: tuple[tuple[float, int], ...] = ((0.4, 4), (0.6, 2), (0.8, 1))
+    #: the appearance grids grow on past ``res_final`` to ``app_res_final`` (0: they stop there with
+    #: the density's), geometrically, one step at each progress of ``app_upsample_at`` (after
+    #: ``upsample_at``'s): the planes hold the surface textures, the density stays coarser
+    app_res_final: int = 400
+    app_upsample_at: tuple[float, ...] = (0.5,)
     background: float = 0.0
+
+    def needs_full_images(self) -> bool:
+        """Training reads the capture's own images (``load_data(..., train_full=True)``)."""
+        return bool(self.train_full_res or self.pixel_schedule)
 
 
 # --------------------------------------------------------------------------- shared
@@ -323,6 +338,7 @@ class FastNeRF(_Boxed):
         self.register_buffer("occupancy", torch.ones(cfg.occ_res, cfg.occ_res, cfg.occ_res, dtype=torch.bool))
         self.register_buffer("occ_active", torch.tensor(False))
         self.register_buffer("stage", torch.tensor(0))          # upsamplings done
+        self.register_buffer("app_stage", torch.tensor(0))      # appearance-only upsamplings done
         self.register_buffer("occ_updates", torch.tensor(0))    # occupancy recomputations done
 
     def load_state_dict(self, state, strict: bool = True, assign: bool = False):
@@ -332,7 +348,19 @@ class FastNeRF(_Boxed):
             if f"{name}.planes" in state and state[f"{name}.planes"].shape != vm.planes.shape:
                 vm.planes = nn.Parameter(torch.zeros_like(state[f"{name}.planes"]))
                 vm.lines = nn.Parameter(torch.zeros_like(state[f"{name}.lines"]))
+        if "app_stage" not in state:  # a checkpoint from before appearance-only growth
+            state = {**state, "app_stage": torch.tensor(0)}
         return super().load_state_dict(state, strict, assign)
+
+    def param_bytes_final(self) -> int:
+        """Bytes of the parameters once every grid has grown to its final resolution."""
+        def vm_bytes(c: int, r: int) -> int:
+            return 4 * 3 * c * (r * r + r)
+        cfg = self.cfg
+        grids = vm_bytes(cfg.n_comp_sigma, self._res_at(len(cfg.upsample_at))) + \
+            vm_bytes(cfg.n_comp_app, self._app_res_at(len(cfg.app_upsample_at)))
+        nets = sum(p.numel() * p.element_size() for m in (self.basis, self.mlp) for p in m.parameters())
+        return grids + nets
 
     # -- field
     @property
@@ -370,6 +398,15 @@ class FastNeRF(_Boxed):
         a, b = math.log(self.cfg.res_init), math.log(self.cfg.res_final)
         return int(round(math.exp(a + (b - a) * stage / n)))
 
+    def _app_res_at(self, app_stage: int) -> int:
+        """The appearance grids' resolution after ``app_stage`` appearance-only upsamplings."""
+        n = len(self.cfg.app_upsample_at)
+        base = self._res_at(len(self.cfg.upsample_at))
+        if n == 0 or self.cfg.app_res_final <= 0:
+            return base
+        a, b = math.log(base), math.log(self.cfg.app_res_final)
+        return int(round(math.exp(a + (b - a) * app_stage / n)))
+
     def on_progress(self, progress: float, step: int = 0) -> bool:
         """Upsample the grids (by progress) and refresh the occupancy (by step) on schedule; True
         when the parameters were replaced (the optimizer must be rebuilt)."""
@@ -380,6 +417,12 @@ class FastNeRF(_Boxed):
             self.app_vm.upsample(self._res_at(target))
             self.stage.fill_(target)
             changed = True
+        if self.cfg.app_res_final > 0 and target == len(self.cfg.upsample_at):
+            app_target = sum(progress >= p for p in self.cfg.app_upsample_at)
+            if app_target > int(self.app_stage):
+                self.app_vm.upsample(self._app_res_at(app_target))
+                self.app_stage.fill_(app_target)
+                changed = True
         if step >= self.cfg.occ_start:
             due = (step - self.cfg.occ_start) // self.cfg.occ_every + 1
             if due > int(self.occ_updates) or changed:

@@ -108,7 +108,7 @@ def run_study(capture_dir, runs: list[Run], minutes: float, reference_dir=None, 
     for run in runs:
         model_cfg = replace(MODELS[run.model][1], **dict(settings.get(run.model, ())))
         data = load_data(capture_dir, run.poses, reference_dir, downsample,
-                         train_full=bool(getattr(model_cfg, "train_full_res", False)))
+                         train_full=bool(getattr(model_cfg, "needs_full_images", lambda: False)()))
         log(f"study: {run.label} ({run.model}, poses {data.poses}) for {minutes} min")
         res = train(data, TrainConfig(model=run.model, minutes=minutes, seed=seed, eval_every_s=eval_every_s,
                                       clock=clock, overrides=settings.get(run.model, ())))

@@ -47,10 +47,11 @@ from render.camera import Camera
 from render.image_io import atomic_path
 from render.metrics import mse_to_psnr, psnr, ssim, to_display  # one PSNR convention (capped at PSNR_MAX_DB)
 
-from .data import NerfData, PixelSampler, camera_rays, stack_rays
+from .data import NerfData, PixelSampler, area_downsample, camera_rays, stack_rays
 from .models import MODELS, make_model
 
-__all__ = ["TrainConfig", "TrainResult", "Deadline", "probe_pixels", "train", "render_view", "evaluate_view", "evaluate_views",
+__all__ = ["TrainConfig", "TrainResult", "Deadline", "probe_pixels", "train", "pixel_schedule", "pixel_samplers",
+           "sampler_at", "render_view", "evaluate_view", "evaluate_views",
            "mse_to_psnr", "render_cost_per_ray"]
 
 
@@ -117,6 +118,8 @@ INFERENCE_CHUNK = 1 << 15
 PROBE_SHARE = 0.02
 #: rays of the probe's first estimate (random pixels of the probe view), which sizes the probe
 PROBE_CALIBRATION_RAYS = 256
+#: a probe's cost per ray less its call's fixed cost is kept at least this share of the raw one
+PROBE_MIN_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,47 @@ def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= knee, 12.92 * x, 1.055 * x.clamp(min=knee) ** (1.0 / 2.4) - 0.055)
 
 
+def pixel_schedule(model_cfg) -> list[tuple[float, int]]:
+    """The model config's training-pixel levels, [(progress, factor)] ascending: its
+    ``pixel_schedule``, or ``train_full_res``'s capture pixels from ``full_res_from`` on. Raises
+    ValueError naming the field when progress is not ascending in [0, 1] or a factor not >= 1."""
+    sched = [tuple(x) for x in getattr(model_cfg, "pixel_schedule", ())]
+    if not sched and getattr(model_cfg, "train_full_res", False):
+        sched = [(float(getattr(model_cfg, "full_res_from", 0.0)), 1)]
+    for i, (p, f) in enumerate(sched):
+        if not (0.0 <= p <= 1.0) or (i and p < sched[i - 1][0]):
+            raise ValueError(f"pixel_schedule: progress must ascend in [0, 1], got {sched}")
+        if int(f) != f or f < 1:
+            raise ValueError(f"pixel_schedule: factors must be integers >= 1, got {sched}")
+    return [(float(p), int(f)) for p, f in sched]
+
+
+def pixel_samplers(data: NerfData, model_cfg) -> list[tuple[float, PixelSampler]]:
+    """[(progress, PixelSampler)] of :func:`pixel_schedule` (empty when the training views carry no
+    full-resolution images: the working scale throughout). A factor equal to the working scale's
+    downsampling draws the working scale's pixels (as the sampler's pyramid level)."""
+    sched = pixel_schedule(model_cfg)
+    if not sched or any(v.full_rgb is None for v in data.train):
+        return []
+    levels: dict[int, PixelSampler] = {}
+    out = []
+    for p, f in sched:
+        if f not in levels:
+            levels[f] = PixelSampler(data.train, f)
+        out.append((p, levels[f]))
+    return out
+
+
+def sampler_at(samplers: list[tuple[float, PixelSampler]], progress: float) -> PixelSampler | None:
+    """The level of ``samplers`` in force at ``progress`` (the last whose progress it has reached),
+    None before the first (the working scale's rays)."""
+    level = None
+    for p, s in samplers:
+        if progress >= p:
+            level = s
+    return level
+
+
 def _make_optimizer(model, progress: float) -> torch.optim.Optimizer:
     return torch.optim.Adam(model.param_groups(progress), betas=(0.9, 0.99))
 
@@ -260,10 +304,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     model = make_model(cfg.model, data.lo, data.hi, cfg.seed, model_cfg)
     gen = torch.Generator().manual_seed(cfg.seed)
     o_all, d_all, c_all = stack_rays(data.train)
-    # rays through the capture's own pixels (FastConfig.train_full_res) from progress full_res_from on
-    pixel_sampler = (PixelSampler(data.train) if getattr(model_cfg, "train_full_res", False)
-                     and all(v.full_rgb is not None for v in data.train) else None)
-    full_res_from = getattr(model_cfg, "full_res_from", 0.0)
+    samplers = pixel_samplers(data, model_cfg)
     if hasattr(model, "init_colour"):
         model.init_colour(c_all.mean(dim=0))  # a resumed run loads its own state below
     n_rays = o_all.shape[0]
@@ -301,16 +342,29 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         random pixels in one call, as the curve renders them) when none was measured yet."""
         nonlocal curve_s_per_ray
         t_probe = time.perf_counter()
-        render_view(model, probe_cam, pixels=calibration[:8], threads=cfg.threads)  # first-call overheads
+        few = calibration[:8]
+        render_view(model, probe_cam, pixels=few, threads=cfg.threads)  # first-call overheads
+        # a call's fixed cost (its rays' setup, the threads), which a held-out view pays once
+        # (VIEW_OVERHEAD_S), not per ray: subtracted from the probes' costs per ray. Why: on a loaded
+        # machine it made a 4793-ray probe price the render at 43 us a ray (the 10-minute stage then
+        # planned 420 s for its capture-size render, judged it not to fit and wrote pixel repeats)
+        call_s = int(few.shape[0]) * render_cost_per_ray(model, probe_cam, few, threads=cfg.threads)
+
+        def per_ray(raw: float, n: int) -> float:
+            return max(raw - call_s / max(n, 1), PROBE_MIN_SHARE * raw)
         cal = calibration[8:] if calibration.shape[0] > 8 else calibration
-        cal_s_per_ray = render_cost_per_ray(model, probe_cam, cal, threads=cfg.threads)
+        cal_raw = render_cost_per_ray(model, probe_cam, cal, threads=cfg.threads)
         if not curve or curve_s_per_ray == 0.0:
-            curve_s_per_ray = cal_s_per_ray
+            curve_s_per_ray = cal_raw  # the curve's calls pay their fixed cost, one per view
+        cal_s_per_ray = per_ray(cal_raw, int(cal.shape[0]))
         left = max(deadline.end - time.perf_counter(), 0.0)
         n = int(min(probe_rows.shape[0], PROBE_SHARE * left / max(cal_s_per_ray, 1e-9)))
         cost, rays = cal_s_per_ray, int(cal.shape[0])
         if n > cal.shape[0]:
-            cost, rays = render_cost_per_ray(model, probe_cam, probe_rows[:n], threads=cfg.threads), n
+            # rows spread over the whole view for this n (the first n of the widest spread are its
+            # top rows: on the default scene black background, priced at 2.1 us a ray where the
+            # render then spent 11.5, a 3.5-minute stage's render planned at 21 s took 113)
+            cost, rays = per_ray(render_cost_per_ray(model, probe_cam, probe_pixels(probe_cam, n), threads=cfg.threads), n), n
         model.train()
         now_ = time.perf_counter()
         probe_log.update(n=probe_log["n"] + 1, s=probe_log["s"] + now_ - t_probe, last_at=now_,
@@ -342,7 +396,8 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
             f = max(f, 1.0 if rest <= 0.0 else train_wall / (train_wall + rest))
         return f
 
-    model.on_progress(frac(), step)
+    if state is None:  # a resumed run's first step applies the schedule after its optimizer state is loaded:
+        model.on_progress(frac(), step)  # a growth due then rebuilds the optimizer, as the run not interrupted did
     opt = _make_optimizer(model, frac())  # the first one imports parts of torch: seconds, before the plan
     if state is not None:
         opt.load_state_dict(state["optimizer"])
@@ -399,8 +454,9 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         hook_wall = max(hook_wall, time.perf_counter() - w0)
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]
-        if pixel_sampler is not None and progress_now >= full_res_from:
-            o_b, d_b, target = pixel_sampler.sample(model.batch_rays(), gen)
+        level = sampler_at(samplers, progress_now)
+        if level is not None:
+            o_b, d_b, target = level.sample(model.batch_rays(), gen)
         else:
             idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
             o_b, d_b, target = o_all[idx], d_all[idx], c_all[idx]
@@ -458,13 +514,19 @@ def evaluate_view(model: nn.Module, v, full_res: bool) -> tuple[dict, dict]:
     """Render one held-out view (:class:`recon.nerf.data.View`) and compare it with its reference:
     (row, render) as one element of :func:`evaluate_views`. A pure function of (model, view), so
     views may be rendered in any process (the pipeline runs one view per unit of work)."""
-    small = render_view(model, v.camera)
-    row = {"view": v.name, **_scores(small["rgb"], v.rgb)}
+    f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
     if full_res:
+        # the working scale's figure: the capture-size render area-averaged as its reference is (a
+        # sensor's larger pixel integrates its footprint); one ray per working pixel aliases a field
+        # trained on finer pixels. That point-sampled render is kept as display_psnr_point.
         big = render_view(model, v.full_camera)
+        point = render_view(model, v.camera)
+        row = {"view": v.name, **_scores(area_downsample(big["rgb"], f), v.rgb),
+               "display_psnr_point": psnr(to_display(point["rgb"]), to_display(v.rgb))}
         row.update({f"{k}_full": x for k, x in _scores(big["rgb"], v.full_rgb).items()})
     else:
-        f = v.full_camera.intrinsics.width // v.camera.intrinsics.width
+        small = render_view(model, v.camera)
+        row = {"view": v.name, **_scores(small["rgb"], v.rgb)}
         big = {k: np.repeat(np.repeat(a, f, axis=0), f, axis=1) for k, a in small.items()}
     return row, {"rgb": big["rgb"], "depth": big["depth"]}
 
@@ -473,8 +535,9 @@ def evaluate_views(model: nn.Module, data: NerfData, full_res: bool) -> tuple[li
     """Render every held-out view and compare it with its reference.
 
     Returns (rows, renders): rows of {view, display_psnr, display_ssim, linear_psnr} at the working
-    scale (against the area-downsampled reference), plus the same with ``_full`` at the reference's resolution when
-    ``full_res``; renders[view] = {"rgb", "depth"} at the reference's resolution: rendered there
+    scale (against the area-downsampled reference; with ``full_res`` the capture-size render
+    area-averaged the same way, and ``display_psnr_point`` the working scale's one ray per pixel),
+    plus the same with ``_full`` at the reference's resolution when ``full_res``; renders[view] = {"rgb", "depth"} at the reference's resolution: rendered there
     when ``full_res``, else the working-scale render repeated to that size (nearest).
     """
     rows, renders = [], {}

@@ -13,8 +13,8 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.stages.nerf import (FULL_RES_SHARE, RENDER_SHARE, NerfStageConfig, eval_factors, plan_renders,
-                                  render_reserve_s, run_nerf)
+from pipeline.stages.nerf import (FULL_RES_SHARE, RENDER_SHARE, NerfStageConfig, RenderReserve, eval_factors,
+                                  plan_renders, render_reserve_s, run_nerf)
 from render.image_io import read_exr
 from tests.recon.nerf_fixtures import FAST_SMALL, SIZE, make_tiny_capture
 
@@ -68,6 +68,29 @@ def test_a_cost_that_falls_late_reserves_no_more_than_is_left():
     assert render_reserve_s(s, rays_at_1, rays_full, 240.0, view_s, factors, left_s=80.0) == pytest.approx(full_cost)
 
 
+def test_a_capture_resolution_render_once_reserved_stays_reserved():
+    """Training has run until the time left is the full render's reserve; a later probe prices it
+    5% higher, above what is left: the reserve stays the full render (training stops), where a
+    stage that never reserved it keeps the working scale's. When the full render no longer fits
+    its share of the budget, the reserve falls back."""
+    factors = eval_factors(*SMALL)
+    rays_at_1, rays_full = VIEWS * SMALL[0] * SMALL[1], VIEWS * FULL[0] * FULL[1]
+    view_s, s = 0.3 * VIEWS, 6.5e-6
+    full_cost = s * (rays_at_1 + rays_full) + view_s
+    working = s * rays_at_1 + view_s
+    held = RenderReserve(rays_at_1, rays_full, 240.0, view_s, factors)
+    assert held(s, left_s=200.0) == pytest.approx(full_cost)
+    assert held(s, left_s=full_cost) == pytest.approx(full_cost)
+    dearer = 1.05 * s * (rays_at_1 + rays_full) + view_s
+    assert held(1.05 * s, left_s=full_cost) == pytest.approx(dearer)
+    fresh = RenderReserve(rays_at_1, rays_full, 240.0, view_s, factors)
+    assert fresh(1.05 * s, left_s=full_cost) == pytest.approx(1.05 * s * rays_at_1 + view_s)
+    # beyond FULL_RES_SHARE of the budget: the working scale's, even once held
+    big = 1.0 + FULL_RES_SHARE * 240.0 / (s * (rays_at_1 + rays_full))
+    assert held(big * s, left_s=1e9) == pytest.approx(min(big * working - (big - 1) * view_s, RENDER_SHARE * 240.0))
+    assert not held.full_held
+
+
 def test_stage_with_render_full_res_prices_and_renders_the_capture_size_views(tmp_path):
     """`render_full_res` on a 24 s budget, training until the deadline: the render cost was probed
     on the capture-size view (32x24, the whole view: fewer pixels than a chunk), the held-out views
@@ -86,3 +109,35 @@ def test_stage_with_render_full_res_prices_and_renders_the_capture_size_views(tm
     assert done["stage_s"] <= BUDGET_SLACK * minutes * 60.0, m["time"]
     for r in m["views"]:
         assert read_exr(out / "renders" / f"{r['view']}.exr").shape == (SIZE[1], SIZE[0], 3)
+
+
+def test_the_render_probe_spreads_its_rows_over_the_whole_view(tmp_path, monkeypatch):
+    """The probe of whole rows that prices the render takes its rows from the top to the bottom of
+    the probe view whatever their number (the first rows of the widest spread were the top of the
+    view: the default scene's black background, priced at a fifth of the render's cost). A fixed
+    fake cost per ray sizes the probe to about 400 of the view's 768 pixels."""
+    import time
+
+    import recon.nerf.train as nt
+    from recon.nerf.data import load_data
+
+    data = load_data(make_tiny_capture(tmp_path / "capture"), downsample=2)
+    cam = data.test[0].full_camera
+    seen = []
+    budget_s = 10.0
+    fake = nt.PROBE_SHARE * budget_s / 400
+
+    def cost(model, camera, pixels, threads=None):
+        seen.append(pixels.clone())
+        return fake
+    monkeypatch.setattr(nt, "render_cost_per_ray", cost)
+    deadline = nt.Deadline(time.perf_counter() + budget_s, lambda s: 0.0, cam)
+    nt.train(data, nt.TrainConfig(model="fast", minutes=1, max_steps=1, eval_every_s=1e9, overrides=FAST_SMALL),
+             deadline=deadline)
+    rows = [p for p in seen if p.shape[0] > nt.PROBE_CALIBRATION_RAYS]
+    assert rows, [p.shape for p in seen]
+    k = cam.intrinsics
+    for p in rows:
+        assert p.shape[0] < k.width * k.height
+        r = p // k.width
+        assert int(r.min()) == 0 and int(r.max()) == k.height - 1, sorted(set(r.tolist()))
