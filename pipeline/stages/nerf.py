@@ -284,8 +284,12 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
     rays_full = len(data.test) * full.width * full.height if full_res else 0
     write_s = WRITE_S_PER_MPIX * len(data.test) * full.width * full.height / 1e6
 
-    def checkpoint_s(m) -> float:  # model + Adam's two moments, saved then copied into the stage
-        return 2.0 * 3.0 * sum(p.numel() * p.element_size() for p in m.parameters()) / CHECKPOINT_BYTES_PER_S
+    def checkpoint_s(m, param_bytes: int | None = None) -> float:
+        """Seconds to save ``m`` (or parameters of ``param_bytes``) with Adam's two moments, then copy
+        it into the stage."""
+        if param_bytes is None:
+            param_bytes = sum(p.numel() * p.element_size() for p in m.parameters())
+        return 2.0 * 3.0 * param_bytes / CHECKPOINT_BYTES_PER_S
 
     ckpt_s_est = 0.0
 
@@ -326,8 +330,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         t_train = time.perf_counter()
         if clock == "wall":  # the grids grow from res_init to res_final (fast model): the saved state with them
             m0 = make_model(model, data.lo, data.hi, seed, model_cfg)
-            ckpt_s_est = (2.0 * 3.0 * m0.param_bytes_final() / CHECKPOINT_BYTES_PER_S if hasattr(m0, "param_bytes_final")
-                          else checkpoint_s(m0))
+            ckpt_s_est = checkpoint_s(m0, m0.param_bytes_final() if hasattr(m0, "param_bytes_final") else None)
         deadline = (Deadline(deadline_end, after_training_s, data.test[0].full_camera if full_res else None)
                     if clock == "wall" else None)
         result = train(data, cfg, checkpoint=ckpt, resume=resume, progress=on_step, deadline=deadline)

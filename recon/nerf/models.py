@@ -391,12 +391,17 @@ class FastNeRF(_Boxed):
     def _target_stage(self, progress: float) -> int:
         return sum(progress >= p for p in self.cfg.upsample_at)
 
+    @staticmethod
+    def _log_spaced(start: int, end: int, k: int, n: int) -> int:
+        """The k-th of n geometric steps from resolution ``start`` to ``end``."""
+        a, b = math.log(start), math.log(end)
+        return int(round(math.exp(a + (b - a) * k / n)))
+
     def _res_at(self, stage: int) -> int:
         n = len(self.cfg.upsample_at)
         if n == 0:
             return self.cfg.res_final
-        a, b = math.log(self.cfg.res_init), math.log(self.cfg.res_final)
-        return int(round(math.exp(a + (b - a) * stage / n)))
+        return self._log_spaced(self.cfg.res_init, self.cfg.res_final, stage, n)
 
     def _app_res_at(self, app_stage: int) -> int:
         """The appearance grids' resolution after ``app_stage`` appearance-only upsamplings."""
@@ -404,8 +409,7 @@ class FastNeRF(_Boxed):
         base = self._res_at(len(self.cfg.upsample_at))
         if n == 0 or self.cfg.app_res_final <= 0:
             return base
-        a, b = math.log(base), math.log(self.cfg.app_res_final)
-        return int(round(math.exp(a + (b - a) * app_stage / n)))
+        return self._log_spaced(base, self.cfg.app_res_final, app_stage, n)
 
     def on_progress(self, progress: float, step: int = 0) -> bool:
         """Upsample the grids (by progress) and refresh the occupancy (by step) on schedule; True
