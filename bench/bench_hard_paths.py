@@ -245,9 +245,13 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
     compiled ``volpath`` on the fog scene (path cannot render media: its row is the same scene
     without the fog), and the numpy reference of volpath on both (the compiled kernels' speed-up).
     Rays per second (every Embree query) too: a fog path has several times more segments. pssmlt
-    (samples: mutations, its fixed bootstrap included) on the caustic scene, its marginal rate
-    (the extra mutations of a 4x spp run over its extra time: the cost beyond the bootstrap), and
-    its path sampler alone, compiled and numpy; compiled bdpt on the caustic scene. Every
+    on the caustic scene: its samples are the paths that contribute to its image, the mutations
+    (proposals) and the bootstrap's uniform paths (splatted since the bootstrap became one of its
+    sampling techniques: render.integrators.pssmlt's estimator), over the whole run's time
+    (``caustic_pssmlt_samples_per_s``; ``caustic_pssmlt_mutations_per_s`` counts the mutations
+    alone, the figure before the bootstrap contributed); its marginal rate (the extra mutations
+    of a 4x spp run over its extra time: the cost beyond the bootstrap), and its path sampler
+    alone, compiled and numpy; compiled bdpt on the caustic scene. Every
     integrator of a scene is timed in turn within each repeat (interleaved; medians, and the
     per-repeat ratios to path). The issue's goal: each compiled integrator within 2x of path's
     samples/s. Load average recorded before and after."""
@@ -288,8 +292,7 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
             runs["pssmlt_4x"] = lambda: render(sc, cam, RenderSettings(integrator="pssmlt", spp=4 * spp, max_depth=8,
                                                                        seed=1), prepared=ps)
         times = {name: [] for name in runs}
-        for fn in runs.values():  # compiled code loaded, workspaces warm
-            fn()
+        warm = {name: fn() for name, fn in runs.items()}  # compiled code loaded, workspaces warm
         for _ in range(reps):  # interleaved: a load spike hits every integrator alike
             for name, fn in runs.items():
                 t0 = time.perf_counter()
@@ -299,15 +302,23 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
         for name, ts in times.items():
             t = float(np.median(ts))
             n = k.width * k.height * {"volpath_numpy": max(spp // 8, 1), "pssmlt_4x": 4 * spp}.get(name, spp)
+            if name.startswith("pssmlt"):  # its samples: mutations and the bootstrap's paths (both splatted)
+                out[f"{scene_name}_{name}_mutations_per_s"] = n / t
+                out[f"{scene_name}_{name}_bootstrap_paths"] = int(warm[name].stats["bootstrap"])
+                n += int(warm[name].stats["bootstrap"])
             out[f"{scene_name}_{name}_samples_per_s"] = n / t
             if name not in ("volpath_numpy", "pssmlt", "pssmlt_4x"):  # Embree queries per second (pssmlt counts none)
                 out[f"{scene_name}_{name}_rays_per_s"] = runs[name]().stats["rays"] / t
     path_sps = out["caustic_path_samples_per_s"]
     out["caustic_path_over_volpath"] = path_sps / out["caustic_volpath_samples_per_s"]
     out["caustic_path_over_pssmlt"] = path_sps / out["caustic_pssmlt_samples_per_s"]
+    out["caustic_path_over_pssmlt_mutations_only"] = path_sps / out["caustic_pssmlt_mutations_per_s"]
     out["caustic_path_over_bdpt"] = path_sps / out["caustic_bdpt_samples_per_s"]
-    out["caustic_path_over_pssmlt_per_repeat"] = [
-        tm / tp for tp, tm in zip(out["caustic_times_s"]["path"], out["caustic_times_s"]["pssmlt"])]
+    n_path = spp * k.width * k.height
+    n_pssmlt = n_path + out["caustic_pssmlt_bootstrap_paths"]
+    out["caustic_path_over_pssmlt_per_repeat"] = [  # samples/s ratios: contributing paths over the same times
+        (n_path / tp) / (n_pssmlt / tm)
+        for tp, tm in zip(out["caustic_times_s"]["path"], out["caustic_times_s"]["pssmlt"])]
     out["caustic_path_over_bdpt_per_repeat"] = [
         tb / tp for tp, tb in zip(out["caustic_times_s"]["path"], out["caustic_times_s"]["bdpt"])]
     # the mutations beyond the bootstrap: 3 spp x W x H more mutations in the 4x run's extra time

@@ -52,25 +52,34 @@ s2 = 1/64, random sign; Kelemen's mutation, its magnitudes quantized to 4096 log
 table lookup instead of an exp per coordinate), wrapped into [0, 1). Both proposals are symmetric,
 so the proposal Y is accepted with a = min(1, I(Y) / I(X)).
 
-**The estimator** (Kelemen et al. 2002, section 5; the one of smallpssmlt and Mitsuba's PSSMLT).
-Two sampling techniques produce paths: the Metropolis chain (expected-value splatting: each step
-adds the proposal with weight a and the current state with weight 1 - a, which is the expectation
-of the state after the step, so each step is one sample of density I / b) and the large steps
-(with probability p_large per step, a uniform sample of density 1). Combining them by the
-balance heuristic, a path of importance I has density I / b + p_large per step, and each step
-splats
+**The estimator** (Kelemen et al. 2002, section 5; the one of smallpssmlt and Mitsuba's PSSMLT,
+with the bootstrap as a third technique). Three sampling techniques produce paths: the
+Metropolis chain (expected-value splatting: each step adds the proposal with weight a and the
+current state with weight 1 - a, which is the expectation of the state after the step, so each
+step is one sample of density I / b), the large steps (with probability p_large per step, a
+uniform sample of density 1) and the bootstrap (N uniform samples, traced anyway to estimate b
+and to start the chains). Combining them by the balance heuristic (Veach's multi-sample form:
+n_t p_t over the sum of n_s p_s), with M steps in all a path of importance I is drawn with
+density M (I / b + c), c = p_large + N / M (the uniform samples per step), and
 
-    proposal Y:  f(Y) (a + [large step]) / (I(Y) / b + p_large)
-    current  X:  f(X) (1 - a)            / (I(X) / b + p_large)
+    proposal Y:   f(Y) (a + [large step]) / (I(Y) / b + c)
+    current  X:   f(X) (1 - a)            / (I(X) / b + c)
+    bootstrap Z:  f(Z)                    / (I(Z) / b + c)
 
-to their pixels. The image is W H / M x the sum of the splats over all M steps of all chains
-(M = spp x W x H mutations: ``spp`` is mutations per pixel on average; C chains advance
-ceil(M / C) steps each, so M is rounded up to whole steps), an estimate of the same I_p as
-`path`: consistent, with the start-up bias that resampling the bootstrap leaves (none in the
-limit of a large bootstrap). With p_large = 0 the weights are pbrt-v3's MLTIntegrator's (splat
-a f / I and (1 - a) f / I, scale by b; pbrt keeps large steps but does not weight them); the
-large-step term adds what independent sampling finds well (dark regions) and cuts the variance
-there. A wrong b biases every pixel by up to its relative error.
+are splatted to their pixels. The image is W H / M x the sum of the splats over all M steps of
+all chains and the N bootstrap samples (M = spp x W x H mutations: ``spp`` is mutations per
+pixel on average; C chains advance ceil(M / C) steps each, so M is rounded up to whole steps),
+an estimate of the same I_p as `path` (expected splat density over the techniques: M I / b +
+M p_large + N = M (I / b + c)): consistent, with the start-up bias that resampling the bootstrap
+leaves (none in the limit of a large bootstrap). With N = 0 these are Kelemen's weights, with
+p_large = 0 too pbrt-v3's MLTIntegrator's (splat a f / I and (1 - a) f / I, scale by b; pbrt keeps
+large steps but does not weight them); the uniform terms add what independent sampling finds
+well (dark regions) and cut the variance there. The bootstrap's paths were thrown away before
+session 33 (a fixed ~30% of a render's time at the defaults, 100 000 paths beside 147 456
+mutations at 48 x 48 and 64 spp); they are samples now, so its cost buys image too, and when
+mutations are few (N / M large) the estimate tends to the bootstrap's own path tracer. The
+chains start from resampled bootstrap samples whose pixels and contributions are kept (no path
+is traced twice). A wrong b biases every pixel by up to its relative error.
 
 **Variance.** Metropolis samples are correlated, so the per-sample variance is meaningless. The
 chains are split into K >= 8 *independent groups* (``groups``, default 16), each with its own
@@ -131,7 +140,7 @@ from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_k
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
 from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat,
-                             pinhole_rays, propose, uniform_rows)
+                             pinhole_rays, propose, splat_uniform, uniform_rows)
 from .volpath import VolContext, trace_primary
 
 __all__ = ["Options", "DIMS_PER_BOUNCE", "RR_DEPTH", "LUMINANCE", "primary_dims", "luminance", "sample_paths",
@@ -371,18 +380,24 @@ def _bootstrap_keys(seed: int, group: int, n: int) -> np.ndarray:
 
 def _bootstraps(ps: PreparedScene, camera: Camera, groups, n: int, max_depth: int, seed: int, caustics: bool,
                 heuristic: str, ctx: VolContext | None = None,
-                rr_depth: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                rr_depth: int | None = None) -> tuple[np.ndarray, ...]:
     """The bootstraps of several groups, traced together in chunks (every row is a pure function
     of its primary sample, so a group's values do not depend on the others). Returns
-    ((G, n) uint64 keys, (G, n) float64 importance)."""
+    ((G, n) uint64 keys, (G, n) float64 importance, (G, n) int64 pixels, (G, n, 3) float64
+    contributions (non-finite ones zeroed), (G,) int64 how many were): the samples are splatted
+    into the image and the chains start from them (no path is traced twice)."""
     D = primary_dims(max_depth)
-    keys = np.concatenate([_bootstrap_keys(seed, g, n) for g in groups]) if len(groups) else np.zeros(0, np.uint64)
-    imp = np.zeros(len(keys))
+    G = len(groups)
+    keys = np.concatenate([_bootstrap_keys(seed, g, n) for g in groups]) if G else np.zeros(0, np.uint64)
+    nk = len(keys)
+    imp, pix, f, bad = np.zeros(nk), np.zeros(nk, np.int64), np.zeros((nk, 3)), np.zeros(nk, bool)
     for c in range(0, len(keys), _BOOT_CHUNK):
         kk = keys[c:c + _BOOT_CHUNK]
-        imp[c:c + len(kk)] = _evaluate(ps, camera, uniform_rows(kk, 0, D), max_depth, caustics, heuristic, ctx,
-                                       rr_depth)[2]
-    return keys.reshape(len(groups), n), imp.reshape(len(groups), n)
+        pc, fc = sample_paths(ps, camera, uniform_rows(kk, 0, D), max_depth, caustics, heuristic, ctx, rr_depth)
+        fc, bc = _sanitize(fc)
+        imp[c:c + len(kk)], pix[c:c + len(kk)], f[c:c + len(kk)], bad[c:c + len(kk)] = luminance(fc), pc, fc, bc
+    return (keys.reshape(G, n), imp.reshape(G, n), pix.reshape(G, n), f.reshape(G, n, 3),
+            bad.reshape(G, n).sum(axis=1))
 
 
 def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: int = 0, group: int = 0,
@@ -392,17 +407,32 @@ def bootstrap(ps: PreparedScene, camera: Camera, n: int, max_depth: int, seed: i
     render.sampling keyed by (seed, group, index)). Returns ((n,) uint64 keys, (n,) float64
     importance I). b = I.mean() estimates E_U[I] = the mean image luminance; row i's sample is
     ``uniform_block(keys[i:i+1], 0, primary_dims(max_depth))``."""
-    keys, imp = _bootstraps(ps, camera, [group], n, max_depth, seed, caustics, heuristic, rr_depth=rr_depth)
+    keys, imp = _bootstraps(ps, camera, [group], n, max_depth, seed, caustics, heuristic, rr_depth=rr_depth)[:2]
     return keys[0], imp[0]
 
 
-def _chain_starts(keys: np.ndarray, imp: np.ndarray, group: int, seed: int, cpg: int, D: int) -> np.ndarray:
-    """(cpg, D) starting states of a group's chains: its bootstrap samples resampled in proportion
-    to their importance (a Generator keyed by (seed, group))."""
+def _chain_starts(imp: np.ndarray, group: int, seed: int, cpg: int) -> np.ndarray:
+    """(cpg,) int64 indices of a group's bootstrap samples where its chains start: resampled in
+    proportion to their importance (a Generator keyed by (seed, group)). Chain c's state is
+    ``uniform_rows(keys[j[c:c+1]], 0, D)``, its pixel and contribution the bootstrap's."""
     rng_sel = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5053, 1, group])
     cdf = np.cumsum(imp)
-    j = np.minimum(np.searchsorted(cdf, rng_sel.random(cpg) * cdf[-1], side="right"), len(imp) - 1)
-    return uniform_rows(keys[j], 0, D)
+    return np.minimum(np.searchsorted(cdf, rng_sel.random(cpg) * cdf[-1], side="right"), len(imp) - 1)
+
+
+def _uniform_share(large_step: float, n_bootstrap: int, cpg: int, steps: int) -> float:
+    """c of the estimator: a group's uniform samples per chain step, p_large + n_bootstrap / M
+    (M = cpg x steps mutations): the large steps and the bootstrap's samples."""
+    return float(large_step) + int(n_bootstrap) / float(cpg * steps)
+
+
+def _splat_bootstrap_numpy(image: np.ndarray, pix: np.ndarray, f: np.ndarray, imp: np.ndarray, b: float,
+                           c: float) -> None:
+    """pssmlt_kernels.splat_uniform in numpy: f / (I / b + c) added to image (npix, 3) at pix."""
+    lit = imp > 0
+    w = np.where(lit, 1.0 / (np.where(lit, imp, 0.0) / b + c), 0.0)
+    for ch in range(3):
+        image[:, ch] += np.bincount(pix, weights=f[:, ch] * w, minlength=len(image))
 
 
 def _chain_keys(seed: int, group: int, chains: np.ndarray) -> np.ndarray:
@@ -425,8 +455,8 @@ class PSSMLTResult:
     acceptance_small, acceptance_large: per kind of step. acceptance_by_importance: list of
     (I / b lower edge, proposals, acceptance rate) of the current state's importance bins
     (edges 0, 0.1, 1, 10, 100). longest_rejection_run: the most consecutive rejections of any
-    chain; stuck_fraction: fraction of the running chains whose state never changed. stats: time_s, paths,
-    nonfinite (contributions zeroed).
+    chain; stuck_fraction: fraction of the running chains whose state never changed. stats: time_s, paths
+    (traced: bootstrap + proposals, all splatted), nonfinite (contributions zeroed).
     """
 
     mean: np.ndarray
@@ -496,25 +526,29 @@ def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: i
     compiled chains (:func:`_run_groups`), the same random numbers and arithmetic (equal images up
     to the order of the splat sums). Its bootstrap (n_bootstrap samples keyed by (seed, group)),
     min(chains, mutations) chains started by resampling it, advanced ceil(mutations / chains)
-    steps, each chain's random numbers the hash of its key (:func:`_chain_keys`). The image is
-    scaled to an estimate of the whole image."""
+    steps, each chain's random numbers the hash of its key (:func:`_chain_keys`); the bootstrap's
+    samples splatted too (the estimator of the module docstring). The image is scaled to an
+    estimate of the whole image."""
     k = camera.intrinsics
     npix = k.width * k.height
     D = primary_dims(max_depth)
     cpg, steps = _group_shape(chains, mutations)
-    keys, imp = bootstrap(ps, camera, n_bootstrap, max_depth, seed, group, caustics, heuristic, rr_depth)
+    keys, imp, bpix, bf, bbad = (a[0] for a in _bootstraps(ps, camera, [group], n_bootstrap, max_depth, seed,
+                                                           caustics, heuristic, rr_depth=rr_depth))
     run = _new_run(float(imp.mean()), cpg, steps, n_bootstrap, npix)
+    run.nonfinite += int(bbad)
     if run.b <= 0:  # no light found: the group runs no chain and its image is black
         return run
     b = run.b
-    X = _chain_starts(keys, imp, group, seed, cpg, D)
-    pix_x, f_x, I_x, bad = _evaluate(ps, camera, X, max_depth, caustics, heuristic, rr_depth=rr_depth)
-    run.nonfinite += bad
+    share = _uniform_share(large_step, n_bootstrap, cpg, steps)
+    acc = run.image
+    _splat_bootstrap_numpy(acc, bpix, bf, imp, b, share)
+    j = _chain_starts(imp, group, seed, cpg)
+    X, pix_x, f_x, I_x = uniform_rows(keys[j], 0, D), bpix[j], bf[j], imp[j]
     ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
     X, pix_x, f_x, I_x = X[ok], pix_x[ok], f_x[ok], I_x[ok]
     ckeys = _chain_keys(seed, group, np.nonzero(ok)[0])
     nc = len(X)
-    acc = run.image
     rejections = np.zeros(nc, np.int64)
     moved = np.zeros(nc, bool)
     for step in range(steps if nc else 0):
@@ -524,10 +558,10 @@ def _run_group_numpy(ps: PreparedScene, camera: Camera, group: int, mutations: i
         pix_y, f_y, I_y, bad = _evaluate(ps, camera, Y, max_depth, caustics, heuristic, rr_depth=rr_depth)
         run.nonfinite += bad
         a = np.minimum(1.0, I_y / I_x)  # I_x > 0 always: a zero-importance proposal is never accepted
-        # Kelemen's estimator: expected-value splats, balance heuristic with the large steps
-        den_y = I_y / b + large_step
+        # Kelemen's estimator: expected-value splats, balance heuristic with the uniform samples
+        den_y = I_y / b + share
         w_y = np.where(den_y > 0, (a + large) / np.where(den_y > 0, den_y, 1.0), 0.0)
-        w_x = (1.0 - a) / (I_x / b + large_step)
+        w_x = (1.0 - a) / (I_x / b + share)
         slots = np.concatenate([pix_y, pix_x])
         vals = np.concatenate([f_y * w_y[:, None], f_x * w_x[:, None]])
         for c in range(3):
@@ -563,20 +597,29 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
     D = primary_dims(max_depth)
     ctx = VolContext(ps, None)
     groups = [int(g) for g, _ in specs]
-    keys, imp = _bootstraps(ps, camera, groups, n_bootstrap, max_depth, seed, caustics, heuristic, ctx, rr_depth)
+    keys, imp, bpix, bf, bbad = _bootstraps(ps, camera, groups, n_bootstrap, max_depth, seed, caustics, heuristic,
+                                            ctx, rr_depth)
+    G = len(specs)
+    image = np.zeros((G, npix, 3))
+    uniform_share = np.ones(G)
     runs, starts = [], []
     for i, (g, mutations) in enumerate(specs):
         cpg, steps = _group_shape(chains, mutations)
         runs.append(_new_run(float(imp[i].mean()), cpg, steps, n_bootstrap, npix))
-        starts.append(_chain_starts(keys[i], imp[i], g, seed, cpg, D) if runs[-1].b > 0 else np.zeros((0, D)))
-    X = np.concatenate(starts) if starts else np.zeros((0, D))
-    owner = np.repeat(np.arange(len(specs)), [len(x) for x in starts])
-    index_in_group = np.concatenate([np.arange(len(x)) for x in starts]) if starts else np.zeros(0, np.int64)
-    pix_x, f_x = sample_paths(ps, camera, X, max_depth, caustics, heuristic, ctx, rr_depth)
-    f_x, bad = _sanitize(f_x)
-    for i in range(len(specs)):
-        runs[i].nonfinite += int((bad & (owner == i)).sum())
-    I_x = luminance(f_x)
+        runs[-1].nonfinite += int(bbad[i])
+        if runs[-1].b > 0:
+            uniform_share[i] = _uniform_share(large_step, n_bootstrap, cpg, steps)
+            splat_uniform(image[i], bpix[i], bf[i], imp[i], runs[-1].b, uniform_share[i])
+            starts.append(_chain_starts(imp[i], g, seed, cpg))
+        else:
+            starts.append(np.zeros(0, np.int64))
+    owner = np.repeat(np.arange(G), [len(j) for j in starts])
+    index_in_group = np.concatenate([np.arange(len(j)) for j in starts]) if starts else np.zeros(0, np.int64)
+    # the chains start from bootstrap samples: their states, pixels and contributions are the bootstrap's
+    X = np.concatenate([uniform_rows(keys[i][j], 0, D) for i, j in enumerate(starts)]) if starts else np.zeros((0, D))
+    pix_x = np.concatenate([bpix[i][j] for i, j in enumerate(starts)]) if starts else np.zeros(0, np.int64)
+    f_x = np.concatenate([bf[i][j] for i, j in enumerate(starts)]) if starts else np.zeros((0, 3))
+    I_x = np.concatenate([imp[i][j] for i, j in enumerate(starts)]) if starts else np.zeros(0)
     ok = I_x > 0  # resampled states carry light (I > 0); guard anyway
     X, pix_x, f_x, I_x = np.ascontiguousarray(X[ok]), pix_x[ok], np.ascontiguousarray(f_x[ok]), I_x[ok]
     owner, index_in_group = owner[ok], index_in_group[ok]
@@ -584,9 +627,8 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
     for i, g in enumerate(groups):
         mine = owner == i
         ckeys[mine] = _chain_keys(seed, g, index_in_group[mine])
-    nc, G = len(X), len(specs)
+    nc = len(X)
     b = np.array([r.b if r.b > 0 else 1.0 for r in runs])
-    image = np.zeros((G, npix, 3))
     rejections, moved = np.zeros(nc, np.int64), np.zeros(nc, np.bool_)
     counters = [np.zeros(G, np.int64) for _ in range(5)]  # proposed, accepted, large, accepted_large, longest
     bins = [np.zeros((G, len(_IMPORTANCE_BINS) + 1)) for _ in range(2)]
@@ -600,7 +642,7 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
         m = len(active)
         propose(X, active, ckeys, step, large_step, Y, large)
         pix_y, f_y = sample_paths(ps, camera, Y[:m], max_depth, caustics, heuristic, ctx, rr_depth)
-        accept_and_splat(active, ckeys, step, large_step, owner, b, X, pix_x, f_x, I_x, Y, large, pix_y,
+        accept_and_splat(active, ckeys, step, uniform_share, owner, b, X, pix_x, f_x, I_x, Y, large, pix_y,
                          np.ascontiguousarray(f_y), image, rejections, moved, *counters, *bins, nonfinite)
     for i, r in enumerate(runs):
         if r.b <= 0:
@@ -650,7 +692,7 @@ def render_pssmlt(scene, camera: Camera, spp: int, max_depth: int = 8, seed: int
     groups and rounded up to a whole number of steps of each group's chains). max_depth:
     maximum scattering events. chains: Markov chains in all (chains / K per group, at most its
     mutations). groups: K >= 8 independent groups (:func:`_run_groups`: each its own bootstrap of
-    n_bootstrap / K samples, its own chains and random streams). threads: worker threads over the
+    n_bootstrap / K samples, splatted into its image too, its own chains and random streams). threads: worker threads over the
     groups (the bytes do not depend on them). large_step: probability
     p_large of a large step (0 <= p_large <= 1). effects: effects to simulate (default
     scene_effects(scene)); without 'caustics', caustic paths are dropped as in
@@ -695,7 +737,7 @@ def _result(runs: list[_GroupRun], h: int, w: int, large_step: float, t0: float)
     found = bool(np.any(b > 0))
     C = sum(r.chains for r in runs)
     nboot = sum(r.bootstrap for r in runs)
-    stats = {"time_s": time.perf_counter() - t0, "paths": int(nboot + n_prop + running),
+    stats = {"time_s": time.perf_counter() - t0, "paths": int(nboot + n_prop),
              "nonfinite": sum(r.nonfinite for r in runs), "no_light": not found}
     return PSSMLTResult(
         mean.reshape(h, w, 3), var.reshape(h, w, 3), imgs.reshape(groups, h, w, 3), b, float(b.mean()), found,
@@ -713,7 +755,8 @@ GROUPS = 16
 GROUP_CHAINS = 4096 // GROUPS
 GROUP_BOOTSTRAP = 100_000 // GROUPS  # not to be cut for speed: see the note below
 # The bootstrap is a fixed cost (16 x 6250 paths; beside 147 456 mutations at 48 x 48 and 64
-# spp, ~30% of the render), but b's error dominates a group image's error on the caustic scenes
+# spp, ~30% of the render; its paths are splatted into the image since session 33, so the cost
+# contributes samples), but b's error dominates a group image's error on the caustic scenes
 # of bench/bench_hard_paths.py: a group image's mean tracks its b (CV of the 16 group means =
 # CV of the b_g, 0.05-0.11 at 6250 samples per group, 0.22-0.29 at 1152; 256 mutations per
 # pixel, seeds 11-14, one-off script), so 1152 per group multiplied the variance 3-8x at equal
@@ -732,8 +775,9 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     which also refuses refine()). The film holds each
     group's image as one sample per pixel (n = groups), so its mean and variance are the mean of
     the group images and the variance of that mean, and renders of whole groups merge exactly in
-    group order. stats (additive): time_s, paths, nonfinite, groups, groups_without_light,
-    chains, mutations, proposed, accepted."""
+    group order. stats (additive): time_s, paths (traced: bootstrap + proposed, every one of them
+    splatted), bootstrap, nonfinite, groups, groups_without_light, chains, mutations, proposed,
+    accepted."""
     a, b = sample_range
     ranges = whole_groups((a, b), settings.spp, GROUPS, "pssmlt")
     t0 = time.perf_counter()
@@ -744,8 +788,8 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     npix = k.width * k.height
     first = [r[0] for r in group_ranges(settings.spp, GROUPS)]
     film = Film(k.width, k.height)
-    stats = {"paths": 0, "nonfinite": 0, "groups": 0, "groups_without_light": 0, "chains": 0, "mutations": 0,
-             "proposed": 0, "accepted": 0}
+    stats = {"paths": 0, "bootstrap": 0, "nonfinite": 0, "groups": 0, "groups_without_light": 0, "chains": 0,
+             "mutations": 0, "proposed": 0, "accepted": 0}
     specs = [(first.index(g0), (g1 - g0) * npix) for g0, g1 in ranges]
     runs = _run_groups_threaded(ps, camera, specs, GROUP_CHAINS, GROUP_BOOTSTRAP, settings.max_depth, settings.seed,
                                 LARGE_STEP, "caustics" in effects, options.heuristic, settings.threads, options.rr)
@@ -753,7 +797,8 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
         if not np.all(np.isfinite(run.image)):
             raise FloatingPointError("pssmlt produced a non-finite radiance (a bug: please report)")
         film.add_moments(run.image, run.image * run.image, np.ones(npix, np.int64))
-        stats["paths"] += run.bootstrap + run.proposed + run.running
+        stats["paths"] += run.bootstrap + run.proposed
+        stats["bootstrap"] += run.bootstrap
         stats["nonfinite"] += run.nonfinite
         stats["groups"] += 1
         stats["groups_without_light"] += int(run.b <= 0)

@@ -22,8 +22,8 @@ from numba import njit
 
 from .path_kernels import _uniform
 
-__all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose", "uniform_rows", "accept_and_splat",
-           "pinhole_rays"]
+__all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose",
+           "uniform_rows", "accept_and_splat", "splat_uniform", "pinhole_rays"]
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -77,14 +77,16 @@ def uniform_rows(keys, dim0, count):
 
 
 @njit(**_JIT)
-def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_x, Y, large, pix_y, f_y,
+def accept_and_splat(active, keys, step, uniform_share, group, b, X, pix_x, f_x, I_x, Y, large, pix_y, f_y,
                      image, rejections, moved, g_proposed, g_accepted, g_large, g_accepted_large, g_longest,
                      g_bins_proposed, g_bins_accepted, g_nonfinite):
     """Finish step ``step`` of the chains ``active`` (M,): their proposals Y (M, D), pix_y (M,),
     f_y (M, 3) (from the path sampler; non-finite or negative contributions are zeroed here and
     counted in g_nonfinite). Splats Kelemen's expected-value contributions (balance heuristic with
-    the large steps) of the proposal and the current state into image[group] (b (G,): each group's
-    bootstrap normalisation), draws acceptance, moves accepted chains to their proposal, and
+    the uniform samples: uniform_share (G,) is each group's uniform samples per step, p_large +
+    n_bootstrap / mutations, the c of :func:`splat_uniform`) of the proposal and the current state
+    into image[group] (b (G,): each group's bootstrap normalisation), draws acceptance, moves
+    accepted chains to their proposal, and
     counts per group: proposals, acceptances, large steps (and their acceptances), proposals and
     acceptances by the current state's I / b bin (G, 5), the longest rejection run.
     rejections (C,) int64 and moved (C,) bool are the chains' running counters."""
@@ -95,6 +97,7 @@ def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_
         c = active[m]
         g = group[c]
         bg = b[g]
+        cg = uniform_share[g]
         y0, y1, y2 = f_y[m, 0], f_y[m, 1], f_y[m, 2]
         if not (math.isfinite(y0) and math.isfinite(y1) and math.isfinite(y2)) or min(y0, y1, y2) < 0.0:
             y0 = y1 = y2 = 0.0
@@ -105,9 +108,9 @@ def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_
         if a > 1.0:
             a = 1.0
         lg = 1.0 if large[m] else 0.0
-        den_y = iy / bg + large_step
+        den_y = iy / bg + cg
         w_y = (a + lg) / den_y if den_y > 0.0 else 0.0
-        w_x = (1.0 - a) / (ix / bg + large_step)
+        w_x = (1.0 - a) / (ix / bg + cg)
         py = pix_y[m]
         px = pix_x[c]
         image[g, py, 0] += y0 * w_y
@@ -141,6 +144,21 @@ def accept_and_splat(active, keys, step, large_step, group, b, X, pix_x, f_x, I_
             rejections[c] += 1
             if rejections[c] > g_longest[g]:
                 g_longest[g] = rejections[c]
+
+
+@njit(**_JIT)
+def splat_uniform(image, pix, f, I, b, c):
+    """Splat uniform (independent) path samples into one group's image (npix, 3): pix (N,) int64,
+    f (N, 3) float64 contributions, I (N,) their luminance, each weighted 1 / (I / b + c) (the
+    balance heuristic of the bootstrap's samples against the chains, b the group's normalisation
+    and c its uniform samples per step: render.integrators.pssmlt's estimator)."""
+    for i in range(pix.shape[0]):
+        if I[i] > 0.0:
+            w = 1.0 / (I[i] / b + c)
+            p = pix[i]
+            image[p, 0] += f[i, 0] * w
+            image[p, 1] += f[i, 1] * w
+            image[p, 2] += f[i, 2] * w
 
 
 @njit(**_JIT)

@@ -28,7 +28,8 @@ from render.film import Film, RenderResult
 from render.scene import RoughConductor
 from render.integrators import RenderSettings, prepare, refine, render
 from render.poses import look_at
-from render.integrators.pssmlt import RR_DEPTH, LUMINANCE, bootstrap, primary_dims, render_pssmlt, sample_paths
+from render.integrators.pssmlt import (GROUP_BOOTSTRAP, GROUP_CHAINS, GROUPS, RR_DEPTH, LUMINANCE, bootstrap,
+                                       primary_dims, render_pssmlt, sample_paths)
 from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Medium, Mirror, PointLight, Scene,
                           SceneObject)
 from test_pathtracer_closed_forms import polygon_irradiance
@@ -176,9 +177,34 @@ def test_pssmlt_agrees_with_path_per_pixel(cornell, cornell_path_reference):
     every pixel channel passes, global z <= 1.7; image means
     within -1.9%..+2.7% of path (mostly b's error, which the groups' spread carries). It fails
     with the large-step term dropped from the proposal weight (89% pass), with b doubled (98%)
-    or scaled by 1.1 (global z 4.9), or with b left out (pbrt-style f / I splats, 57%)."""
+    or scaled by 1.1 (global z 4.9), or with b left out (pbrt-style f / I splats, 57%). With the
+    bootstrap's samples splatted (session 33; here N / M = 1, c = 1.3), seeds 1-5: every pixel
+    channel passes, global z <= 2.2; it fails with those splats dropped or with the chains'
+    weights left at p_large (the bootstrap counted in neither denominator)."""
     sc, ps, cam = cornell
     res = render_pssmlt(sc, cam, 1024, max_depth=6, seed=1, prepared=ps, n_bootstrap=1 << 18)
+    assert res.found_light and np.all(np.isfinite(res.mean)) and np.all(np.isfinite(res.variance))
+    frac, thr, gz, gthr = mlt_z(res, cornell_path_reference)
+    assert frac >= 0.9975, f"only {frac:.4f} of pixel channels pass (t threshold {thr:.2f})"
+    assert np.all(gz < gthr), f"image means differ: z = {gz} >= {gthr:.2f}"
+
+
+def test_pssmlt_at_render_defaults_agrees_with_path_per_pixel(cornell, cornell_path_reference):
+    """The estimator in the bootstrap-dominated regime of render()'s defaults (16 groups, each
+    GROUP_CHAINS = 256 chains and GROUP_BOOTSTRAP = 6250 bootstrap samples, splatted into the
+    image as uniform samples: 64 mutations per pixel are 1024 per group, so the bootstrap's
+    share per step n_bootstrap / M is 6.1 and the chains' splats weigh little) against `path`
+    on the 16 x 16 Cornell box, max_depth 6, seed 1: the same per-pixel t_15 and global tests
+    as above (alpha 0.01, Sidak). Measured (seeds 1-4): every pixel channel passes, global z
+    <= 1.4 (threshold 3.48); 256 mutations per pixel (share 1.5) alike; the estimator before
+    the bootstrap was splatted (seeds 1, 2): 99.61% and 99.35% of the channels pass (its
+    bootstrap paths thrown away). Fails with the bootstrap's splats dropped (6.8% pass, global
+    z 25) and with the chains' balance weights left at p_large alone (n_bootstrap / M missing
+    from their denominators: 9.5%, z 54)."""
+    sc, ps, cam = cornell
+    res = render_pssmlt(sc, cam, 64, max_depth=6, seed=1, prepared=ps, chains=GROUPS * GROUP_CHAINS,
+                        n_bootstrap=GROUPS * GROUP_BOOTSTRAP, groups=GROUPS)
+    assert res.bootstrap == GROUPS * GROUP_BOOTSTRAP and res.mutations == 64 * CORNELL_RES ** 2
     assert res.found_light and np.all(np.isfinite(res.mean)) and np.all(np.isfinite(res.variance))
     frac, thr, gz, gthr = mlt_z(res, cornell_path_reference)
     assert frac >= 0.9975, f"only {frac:.4f} of pixel channels pass (t threshold {thr:.2f})"
@@ -208,7 +234,9 @@ def test_furnace_one_number():
     0.07, in 0.30 s; at 2048 mutations se 0.0023 in 0.11 s), path z -1.6 (se 0.0024), the
     sampler with roulette z 0.77 (se 0.0019; without it, 256 spp, 6-column layout: z 1.0, se
     0.0004); dropping the large-step term of the proposal weight gives 0.77, and the emitter's
-    radiance scaled by 1.02 (render/bsdf.py) fails pssmlt at z 13.7."""
+    radiance scaled by 1.02 (render/bsdf.py) fails pssmlt at z 13.7. With the bootstrap's samples
+    splatted (session 33): 1.0025 (se 0.0012, z 2.05) and with roulette 1.0002 (se 0.0013, z
+    0.16); dropping the bootstrap's splats, or leaving N / M out of the chains' weights, fails it."""
     sc, cam = _furnace()
     ps = prepare(sc)
     for spp, rr_depth in ((2048, None), (8192, RR_DEPTH)):
@@ -317,7 +345,9 @@ def test_hard_case_metropolis_chains_stuck_in_a_tiny_bright_region():
     global t test of mlt_z (alpha 0.01), with the wall (every pixel but the slit's) agreeing by
     the same test: stuck chains cost variance, reported honestly by the groups, not bias.
     Measured z (whole image, wall) over the same seeds: at most 1.95 and 2.0 (threshold 2.95).
-    Doubling b in the weights fails it (z 3.4), as does dropping the large-step term (4.7)."""
+    Doubling b in the weights fails it (z 3.4), as does dropping the large-step term (4.7). With
+    the bootstrap's samples splatted (session 33), seeds 40, 1, 2: z at most 1.9 and 1.2, 35-49%
+    of the chains never move; dropping those splats fails it."""
     sc, cam = _slit_scene()
     ps = prepare(sc)
     res = render_pssmlt(sc, cam, 128, seed=40, prepared=ps, chains=512, n_bootstrap=1 << 17)

@@ -88,8 +88,10 @@ def test_compiled_chains_equal_the_numpy_chains():
     the same counter-based random numbers, so the comparison is exact, not statistical: the same
     b, the same number of acceptances (overall, of large steps, per importance bin), the same
     longest rejection run and moved chains, and images equal up to the order of the splat sums
-    (rtol 1e-9; measured 5e-15). A third run of group 3 alone gives the same bytes as in the
-    pair (a group does not depend on what shares its wavefront)."""
+    (rtol 1e-9; measured 5e-15), the bootstrap's splats (pssmlt_kernels.splat_uniform against
+    its numpy form) included: the compiled groups without them fail it. A third run of group 3
+    alone gives the same bytes as in the pair (a group does not depend on what shares its
+    wavefront)."""
     from render.integrators import pssmlt
 
     sc, cam = _glass_scene(), _glass_camera()
