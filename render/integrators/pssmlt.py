@@ -140,7 +140,7 @@ from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_k
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
 from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat,
-                             pinhole_rays, propose, splat_uniform, uniform_rows)
+                             pinhole_rays, propose, sanitize_rows, splat_uniform, uniform_rows)
 from .volpath import VolContext, trace_primary
 
 __all__ = ["Options", "DIMS_PER_BOUNCE", "RR_DEPTH", "LUMINANCE", "primary_dims", "luminance", "sample_paths",
@@ -360,8 +360,13 @@ def small_step(U: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 def _sanitize(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Contributions (N, 3) with non-finite or negative rows zeroed (in place), and (N,) bool
-    which rows were."""
-    bad = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0) if len(f) else np.zeros(0, bool)
+    which rows were (compiled: pssmlt_kernels.sanitize_rows, 3% of a small render's time in numpy)."""
+    bad = np.zeros(len(f), bool)
+    if f.dtype == np.float64 and f.ndim == 2 and f.shape[1] == 3 and f.flags.c_contiguous:
+        sanitize_rows(f, bad)
+        return f, bad
+    if len(f):
+        bad = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0)
     if bad.any():
         f[bad] = 0.0
     return f, bad

@@ -23,7 +23,7 @@ from numba import njit
 from .path_kernels import _uniform
 
 __all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose",
-           "uniform_rows", "accept_and_splat", "splat_uniform", "pinhole_rays"]
+           "uniform_rows", "accept_and_splat", "splat_uniform", "sanitize_rows", "pinhole_rays"]
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -144,6 +144,19 @@ def accept_and_splat(active, keys, step, uniform_share, group, b, X, pix_x, f_x,
             rejections[c] += 1
             if rejections[c] > g_longest[g]:
                 g_longest[g] = rejections[c]
+
+
+@njit(**_JIT)
+def sanitize_rows(f, bad):
+    """Zero the rows of f (N, 3) float64 with a non-finite or negative entry, in place, and mark
+    them in bad (N,) bool (render.integrators.pssmlt._sanitize in one pass)."""
+    for i in range(f.shape[0]):
+        a, b, c = f[i, 0], f[i, 1], f[i, 2]
+        if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)) or min(a, b, c) < 0.0:
+            f[i, 0] = f[i, 1] = f[i, 2] = 0.0
+            bad[i] = True
+        else:
+            bad[i] = False
 
 
 @njit(**_JIT)

@@ -123,3 +123,19 @@ def test_compiled_uniform_rows_equal_uniform_block():
 
     keys = path_keys(5, np.arange(300), np.arange(300) * 7)
     assert np.array_equal(uniform_rows(keys, 3, 50), uniform_block(keys, 3, 50))
+
+
+def test_compiled_sanitize_equals_the_numpy_rule():
+    """pssmlt._sanitize (compiled: pssmlt_kernels.sanitize_rows) zeroes exactly the rows of a
+    contribution array with a NaN, an infinity or a negative entry, in place, and flags them,
+    as the numpy rule does (the non-contiguous fallback too). Fails with the negative check
+    dropped from the kernel."""
+    from render.integrators.pssmlt import _sanitize
+
+    f = np.random.default_rng(3).random((500, 3))
+    f[3, 1], f[7, 2], f[9, 0], f[11] = np.nan, -1e-12, np.inf, -np.inf
+    bad_ref = ~np.all(np.isfinite(f), axis=1) | (f.min(axis=1) < 0)
+    want = np.where(bad_ref[:, None], 0.0, f)
+    for arr in (f.copy(), np.asfortranarray(f)):
+        out, bad = _sanitize(arr)
+        assert out is arr and np.array_equal(bad, bad_ref) and np.array_equal(out, want)
