@@ -127,6 +127,21 @@ class ColmapConfig:
       noise floor), so their error is structured per point and viewing direction, and the mean
       error is set by it, not by the geometry; open: which feature error (texture filtering of
       the obliquely seen board, SIFT's localisation under foreshortening).
+    * Which observations carry it (session 33; 224 views, the stage's global-mapper model before
+      its 10 final iterations, then those iterations on a changed set of tracks, image
+      measurements only; one-off /tmp/s33/hb/probe_ba.py, load 8-15): all tracks 0.0196 deg mean
+      (0.073 max), ring pitches +0.0074 / +0.0008 deg (held-out ring +0.0040). Only the
+      observations of SIFT keypoints up to 1.9 px scale (OpenCV's size / 2; the median, 51% of
+      them): 0.0177 (0.066 max), pitches +0.0025 / +0.0052 / +0.0036 (30 iterations: the same);
+      only those above 1.9 px: 0.0577 (0.125 max); only those up to 1.3 px (27%): 0.0329 (0.091
+      max): the larger keypoints hold most of the error, but the smallest alone are too few.
+      The ChArUco board's inner corners (``detect_board``, cornerSubPix, one track per corner id
+      across the views, triangulated from the mapper's poses: 58 tracks, 8,613 observations, 4%
+      of the SIFT ones) added before the final iterations: 0.0167 (0.055 max), pitches +0.0022 /
+      -0.0001 / +0.0010; each corner added 10 times over-corrects (0.0170, pitches -0.0083 /
+      -0.0020 / -0.0073). Both together (scale up to 1.9 px, the corners once): 0.0151 (0.050
+      max), pitches -0.0029 / +0.0038 / 0.0000, the final iterations on 10,219 points instead of
+      17,347. Neither is in the stage yet (not measured at 1000 views).
 
     Below 150 views exhaustive matching and the incremental mapper stay the most accurate at a
     cost that is still small; above, pairs must grow linearly and only the global mapper
