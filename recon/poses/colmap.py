@@ -141,7 +141,14 @@ class ColmapConfig:
       -0.0001 / +0.0010; each corner added 10 times over-corrects (0.0170, pitches -0.0083 /
       -0.0020 / -0.0073). Both together (scale up to 1.9 px, the corners once): 0.0151 (0.050
       max), pitches -0.0029 / +0.0038 / 0.0000, the final iterations on 10,219 points instead of
-      17,347. Neither is in the stage yet (not measured at 1000 views).
+      17,347. At 1000 views (LAYOUTS[1000], the stage's final model of the end-to-end run in
+      bench_poses_scale.json, 0.0433 deg; 10 more iterations, load 3.4-4.2): with the corners
+      (58 tracks, 38,335 observations, every view) 0.0256 deg mean (0.066 max), pitches +0.0044
+      (20 deg) / -0.0157 (35) / -0.0152 (50) / -0.0058 (held out) against +0.047 / +0.001 /
+      -0.011 / +0.023; without them 0.0432 (0.140 max): the corners, not the iterations. Not in
+      the stage yet (needs the board definition passed to the mapper and the corners added as
+      keypoints; pycolmap refuses to extend an image's points2D, the probe went through the text
+      model); the board detection cost 513 s for 1000 views on one thread at load ~12.
 
     Below 150 views exhaustive matching and the incremental mapper stay the most accurate at a
     cost that is still small; above, pairs must grow linearly and only the global mapper
