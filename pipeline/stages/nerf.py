@@ -88,7 +88,7 @@ from .capture import check_capture_folder
 from .poses import check_poses
 
 __all__ = ["NerfStageConfig", "run_nerf", "nerf_view", "write_curve_csv", "CURVE_FIELDS", "CURVE_TIME", "CURVE_PSNR", "eval_factors", "eval_factor",
-           "plan_renders", "render_reserve_s", "RenderReserve", "RENDER_SHARE", "FULL_RES_SHARE", "WRITE_S_PER_MPIX"]
+           "plan_renders", "render_reserve_s", "RenderReserve", "RENDER_SHARE", "RENDER_PLAN_FACTOR", "RENDER_MARGIN", "FULL_RES_SHARE", "WRITE_S_PER_MPIX"]
 
 #: curve.csv's columns: training step, training seconds, wall seconds since training began, held-out
 #: display PSNR (8-bit sRGB) and linear PSNR (dB)
@@ -105,7 +105,14 @@ FULL_RES_SHARE = 0.5
 #: writing one held-out view (linear EXR, PNG preview, depth EXR) per megapixel of the capture,
 #: seconds (measured 0.6 on 2 cores shared by 7 processes, 0.22 on idle ones)
 WRITE_S_PER_MPIX = 0.6
-#: a render's cost per ray as planned: the measured one (on a probe of 128 rays) times this
+#: the render's cost per ray reserved during training: the probe's (whole rows of a capture-size
+#: view, recon.nerf.train) times this. Why 1.0 (was 1.25): the probe over-prices the final render
+#: (quiet stages of session 32: 10 minutes probed 9.0 us a ray, rendered at 6.1; 5 minutes 7.7 and
+#: 7.0; the demo's 3.5 7.2 and 6.0), so the 1.25 left 38 s of the demo's 210 and 59 of 600 unused
+RENDER_PLAN_FACTOR = 1.0
+#: after training, the capture-size render is done when its planned cost fits this times the time
+#: left (the slack spent: a last step's overrun does not discard the render planned; the stage
+#: then ends at most (RENDER_MARGIN - 1) x the render's cost late)
 RENDER_MARGIN = 1.25
 #: a held-out view's fixed cost besides its rays (scoring, upsampling to the capture's size), seconds
 VIEW_OVERHEAD_S = 0.3
@@ -303,7 +310,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
         RENDER_SHARE of it, the coarsest when none does; :class:`RenderReserve`), writing the views
         and the checkpoint."""
         left = deadline_end - time.perf_counter() - write_s - ckpt_s_est
-        return reserve(RENDER_MARGIN * s_per_ray, left) + write_s + ckpt_s_est
+        return reserve(RENDER_PLAN_FACTOR * s_per_ray, left) + write_s + ckpt_s_est
 
     manifest = Manifest("nerf", params={
         "model": model, "minutes": minutes, "clock": clock, "max_steps": max_steps, "seed": seed,
@@ -339,7 +346,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
                           "rendered (steps 0 in metrics.json)")
         train_end = time.perf_counter()
         plan = dict(result.plan)
-        s_per_ray = RENDER_MARGIN * plan.get("render_s_per_ray", 0.0)
+        s_per_ray = RENDER_PLAN_FACTOR * plan.get("render_s_per_ray", 0.0)
         available = math.inf
         if deadline is not None:
             # the checkpoint is saved (training wrote it): what is left is copying it into the stage
@@ -401,7 +408,7 @@ def run_nerf(capture_dir: Path, poses_dir: Path | None, out: Path, config: NerfS
                             "train_s": plan["planned_train_s_last"],
                             "render_s": round(s_per_ray * (rays_at_1 / (k * k) + (rays_full if full_res else 0)), 3),
                             "render_s_per_ray": s_per_ray, "render_budget_s": round(available, 3),
-                            "render_s_per_ray_first": RENDER_MARGIN * plan["render_s_per_ray_untrained"],
+                            "render_s_per_ray_first": RENDER_PLAN_FACTOR * plan["render_s_per_ray_untrained"],
                             "render_s_per_view": VIEW_OVERHEAD_S,
                             "write_s": round(write_s + checkpoint_s(result.model), 3),
                             "eval_factor": k, "eval_size": [eval_w, eval_h],

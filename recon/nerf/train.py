@@ -1,7 +1,8 @@
 """Training a radiance field on a wall-clock budget, rendering and evaluating held-out views.
 
 The loop: random rays from all training pixels (a seeded generator), the model's render, MSE
-against the sRGB-encoded radiance (``TrainConfig.loss``; plus the coarse network's for NeRF), Adam with the model's
+against the sRGB-encoded radiance (``TrainConfig.loss``; plus the coarse network's for NeRF; on the
+fast model's pyramid levels its ``fine_loss``, :func:`fit_loss`), Adam with the model's
 learning-rate schedule, which follows *progress* = max(training time / budget, step / max_steps).
 The clock counts training only: held-out evaluations for the curve and checkpoint writes are
 excluded (``wall_s`` in the curve counts everything). Same seed, same data order; the schedule
@@ -51,7 +52,7 @@ from .data import NerfData, PixelSampler, area_downsample, camera_rays, stack_ra
 from .models import MODELS, make_model
 
 __all__ = ["TrainConfig", "TrainResult", "Deadline", "probe_pixels", "train", "pixel_schedule", "pixel_samplers",
-           "sampler_at", "render_view", "evaluate_view", "evaluate_views",
+           "sampler_at", "srgb_slope", "fit_loss", "render_view", "evaluate_view", "evaluate_views",
            "mse_to_psnr", "render_cost_per_ray"]
 
 
@@ -232,6 +233,30 @@ def srgb_encode(linear: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= knee, 12.92 * x, 1.055 * x.clamp(min=knee) ** (1.0 / 2.4) - 0.055)
 
 
+def srgb_slope(linear: torch.Tensor) -> torch.Tensor:
+    """The derivative of :func:`srgb_encode` (any shape): 12.92 at and below the knee 0.0031308
+    (its largest value), else 1.055 / 2.4 x^(-1.4 / 2.4)."""
+    x = linear.clamp(min=0.0)
+    knee = 0.0031308
+    return torch.where(x <= knee, torch.full_like(x, 12.92), (1.055 / 2.4) * x.clamp(min=knee) ** (-1.4 / 2.4))
+
+
+def fit_loss(preds: list[torch.Tensor], target: torch.Tensor, kind: str) -> torch.Tensor:
+    """The sum over ``preds`` ((R, 3) linear radiance each: the render and the model's auxiliary
+    ones) of their mean squared error against ``target`` (R, 3): "display" of the sRGB encodings,
+    "linear" of linear radiance, "tangent" of linear radiance times the sRGB curve's slope at the
+    prediction held constant (the display error to first order, whose minimiser over targets a ray
+    cannot tell apart is their linear mean; the display one's is darker, sRGB being concave)."""
+    if kind == "display":
+        shown = srgb_encode(target)
+        return sum(torch.mean((srgb_encode(p) - shown) ** 2) for p in preds)
+    if kind == "linear":
+        return sum(torch.mean((p - target) ** 2) for p in preds)
+    if kind == "tangent":
+        return sum(torch.mean((srgb_slope(p.detach()) * (p - target)) ** 2) for p in preds)
+    raise ValueError(f"unknown loss {kind!r}")
+
+
 def pixel_schedule(model_cfg) -> list[tuple[float, int]]:
     """The model config's training-pixel levels, [(progress, factor)] ascending: its
     ``pixel_schedule``, or ``train_full_res``'s capture pixels from ``full_res_from`` on. Raises
@@ -305,6 +330,16 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     gen = torch.Generator().manual_seed(cfg.seed)
     o_all, d_all, c_all = stack_rays(data.train)
     samplers = pixel_samplers(data, model_cfg)
+    coarse_w = float(getattr(model_cfg, "coarse_loss", 0.0))
+    coarse_k = int(getattr(model_cfg, "coarse_group", 1))
+    coarse_root = int(round(math.sqrt(coarse_k)))
+    if coarse_w < 0.0 or not math.isfinite(coarse_w):
+        raise ValueError(f"coarse_loss must be a finite number >= 0, got {coarse_w}")
+    if coarse_w > 0.0 and (coarse_k < 1 or coarse_root * coarse_root != coarse_k):
+        raise ValueError(f"coarse_group must be a square number >= 1, got {coarse_k}")
+    fine_loss = getattr(model_cfg, "fine_loss", "display")
+    if fine_loss not in ("display", "tangent"):
+        raise ValueError(f"fine_loss must be 'display' or 'tangent', got {fine_loss!r}")
     if hasattr(model, "init_colour"):
         model.init_colour(c_all.mean(dim=0))  # a resumed run loads its own state below
     n_rays = o_all.shape[0]
@@ -455,19 +490,28 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]
         level = sampler_at(samplers, progress_now)
-        if level is not None:
+        block_target = None
+        if level is not None and coarse_w > 0.0 and data.downsample % level.factor == 0 and \
+                data.downsample // level.factor >= coarse_root:
+            n_blocks = max(model.batch_rays() // coarse_k, 1)
+            o_b, d_b, target, block_target = level.sample_blocks(n_blocks, data.downsample // level.factor,
+                                                                 coarse_k, gen)
+        elif level is not None:
             o_b, d_b, target = level.sample(model.batch_rays(), gen)
         else:
             idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
             o_b, d_b, target = o_all[idx], d_all[idx], c_all[idx]
         out = model.render(o_b, d_b, training=True, generator=gen)
         mse = torch.mean((out.rgb - target) ** 2)
-        if cfg.loss == "display":
-            shown = srgb_encode(target)
-            loss = torch.mean((srgb_encode(out.rgb) - shown) ** 2) + sum(
-                torch.mean((srgb_encode(a) - shown) ** 2) for a in out.aux)
-        else:
-            loss = mse + sum(torch.mean((a - target) ** 2) for a in out.aux)
+        kind = "tangent" if level is not None and cfg.loss == "display" and fine_loss == "tangent" else cfg.loss
+        loss = fit_loss([out.rgb, *out.aux], target, kind)
+        enc = srgb_encode if cfg.loss == "display" else (lambda x: x)
+        if block_target is not None:
+            # the footprint's rendered mean (linear light, as a sensor's larger pixel integrates)
+            # against its area-averaged colour: the low frequencies, supervised by every capture
+            # pixel of the footprint rather than the coarse_group drawn
+            block_mean = out.rgb.reshape(-1, coarse_k, 3).mean(dim=1)
+            loss = loss + coarse_w * torch.mean((enc(block_mean) - enc(block_target)) ** 2)
         if not torch.isfinite(loss):
             raise RuntimeError(f"non-finite loss at step {step} (model {cfg.model})")
         opt.zero_grad(set_to_none=True)
