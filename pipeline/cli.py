@@ -262,6 +262,9 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
           root: Path = typer.Option(DEFAULT_ROOT, help="artifacts root"),
           capture: Optional[Path] = typer.Option(None, help="pose_tolerance: the capture folder"),
           poses: Optional[Path] = typer.Option(None, help="pose_tolerance: a poses folder, its accuracy marked"),
+          only: Optional[list[str]] = typer.Option(None, help="run only this stage's sweep (repeatable): "
+                                                  "reference | poses | slab | nerf; the capture and the study's "
+                                                  "reference always run"),
           quiet: bool = QUIET,
           overwrite: bool = OVERWRITE):
     """Sweep every stage's accuracy knob, time it, and draw the Pareto fronts of accuracy against time.
@@ -269,6 +272,10 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
     With a lecture study's name instead of a scene, run that study into <root>/lecture/<name>.
     pose_tolerance --capture DIR [--poses DIR]: NeRF and slab display PSNR against perturbed cameras
     (into <capture>/../study_pose_tolerance)."""
+    from .stages.lecture import LECTURE_STUDIES
+
+    if only and (scene == "pose_tolerance" or scene in LECTURE_STUDIES):
+        raise BadInput(f"study {scene}: --only selects a scene study's sweeps, not a part of {scene}")
     if scene == "pose_tolerance":
         from .stages.pose_tolerance_study import default_out, run_pose_tolerance
 
@@ -278,7 +285,7 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
         m = run_pose_tolerance(capture, out, poses, profile=profile, seed=seed, quiet=quiet, overwrite=overwrite)
         typer.echo(f"study pose_tolerance: {m['metrics']['points']} points in {m['metrics']['wall_time_s']:.0f} s -> {out}")
         return
-    from .stages.lecture import LECTURE_STUDIES, lecture_dir, run_lecture_study
+    from .stages.lecture import lecture_dir, run_lecture_study
 
     if scene in LECTURE_STUDIES:
         out = out or lecture_dir(scene, root)
@@ -291,7 +298,8 @@ def study(scene: str = typer.Argument("turntable", help="built-in scene name or 
 
     spec, _ = load_spec(scene)
     out = out or stage_dir(spec.name, "study", root)
-    m = run_study(scene, out, profile=profile, seed=seed, root=root, quiet=quiet, overwrite=overwrite)
+    m = run_study(scene, out, profile=profile, seed=seed, root=root, quiet=quiet, overwrite=overwrite,
+                  only=tuple(only) if only else None)
     typer.echo(f"study: {m['metrics']['points']} points ({m['metrics']['failed']} failed) "
                f"in {m['wall_time_s']:.0f} s -> {out}")
 

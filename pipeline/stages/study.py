@@ -60,9 +60,12 @@ from ..plot import Series, pareto_mask, svg_plot, write_svg
 from ..progress import progress_bar
 from .validate import ValidateConfig, compare_view, reference_at
 
-__all__ = ["StudyConfig", "PROFILES", "derived_scene", "run_study", "pareto_rows"]
+__all__ = ["StudyConfig", "PROFILES", "STUDY_STAGES", "derived_scene", "run_study", "pareto_rows"]
 
 _TRUTH_SEED_OFFSET = 1000
+
+#: the sweeps a study can run (``lumigraph study --only``); rebinning runs when both poses and slab do
+STUDY_STAGES = ("reference", "poses", "slab", "nerf")
 
 
 @dataclass(frozen=True)
@@ -71,7 +74,8 @@ class StudyConfig:
     test_views: held-out cameras kept per test ring (0 = all); truth_spp: samples of the study's
     reference; spp / integrators: path tracer sweep; poses: (method, COLMAP image scale) pairs;
     slab_grid: (uv_res, st_res) pairs (every interpolation mode is scored); rebin_grid: the
-    (uv_res, st_res) of slabs rebinned on each pose estimate; nerf: (model, minutes) pairs."""
+    (uv_res, st_res) of slabs rebinned on each pose estimate; nerf: (model, minutes) pairs; stages: the
+    sweeps run (a subset of STUDY_STAGES; the capture and the study's reference always run)."""
 
     size_scale: float = 0.5
     test_views: int = 2
@@ -82,8 +86,12 @@ class StudyConfig:
     slab_grid: tuple[tuple[int, int], ...] = ((4, 48), (8, 96))
     rebin_grid: tuple[int, int] = (4, 48)
     nerf: tuple[tuple[str, float], ...] = (("fast", 0.5), ("fast", 1.5))
+    stages: tuple[str, ...] = STUDY_STAGES
 
     def __post_init__(self):
+        unknown = [s for s in self.stages if s not in STUDY_STAGES]
+        if unknown or not self.stages:
+            raise ValueError(f"stages must be a non-empty subset of {', '.join(STUDY_STAGES)}, got {list(self.stages)}")
         if not 0 < self.size_scale <= 4:
             raise ValueError(f"size_scale must be in (0, 4], got {self.size_scale}")
         if self.truth_spp < 2 or any(s < 1 for s in self.spp):
@@ -353,11 +361,13 @@ def _front_svg(rows: list[dict], title: str, ylabel: str, accuracy: str, cost: s
 
 
 def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick", config: StudyConfig | None = None,
-              seed: int = 0, root: Path = Path("artifacts"), quiet: bool = False, overwrite: bool = False) -> dict:
+              seed: int = 0, root: Path = Path("artifacts"), quiet: bool = False, overwrite: bool = False,
+              only: tuple[str, ...] | None = None) -> dict:
     """Sweep every stage's accuracy knob on ``scene`` (a built-in name or YAML path) with
-    ``profile``'s settings (or ``config``); writes ``out`` (default ``root/<scene>/study``)
-    atomically and returns the manifest. BadInput on an unknown profile or a bad scene, or when
-    ``out`` holds something else than a finished study (unless ``overwrite``)."""
+    ``profile``'s settings (or ``config``); ``only`` restricts the sweeps to those stages
+    (STUDY_STAGES); writes ``out`` (default ``root/<scene>/study``) atomically and returns the
+    manifest. BadInput on an unknown profile or stage or a bad scene, or when ``out`` holds
+    something else than a finished study (unless ``overwrite``)."""
     from rig.build import load_scene
 
     from .capture import run_capture
@@ -367,6 +377,11 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
         if profile not in PROFILES:
             raise BadInput(f"--profile must be one of {', '.join(PROFILES)}, got {profile!r}")
         config = PROFILES[profile]
+    if only:
+        bad = [s for s in only if s not in STUDY_STAGES]
+        if bad:
+            raise BadInput(f"--only must name stages among {', '.join(STUDY_STAGES)}, got {bad[0]!r}")
+        config = replace(config, stages=tuple(dict.fromkeys(only)))
     from rig.spec import load_spec, resolve_scene_path
 
     spec, _ = load_spec(scene)  # SpecError (exit 2) on a bad scene, before anything is written
@@ -379,8 +394,10 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
         scene_file = derived_scene(scene, work, config.size_scale, config.test_views)
         rig = load_scene(scene_file)
         art = work / "art" / rig.scene.name
-        n_points = (len(config.integrators) * len(config.spp) + 2 * len(config.poses) + len(config.slab_grid)
-                    + len(config.nerf) + 2)
+        run = set(config.stages)
+        n_points = (("reference" in run) * len(config.integrators) * len(config.spp)
+                    + ("poses" in run) * len(config.poses) * (1 + ("slab" in run))
+                    + ("slab" in run) * len(config.slab_grid) + ("nerf" in run) * len(config.nerf) + 2)
         with progress_bar(quiet) as bar:
             task = bar.add_task(f"study {rig.scene.name}", total=n_points, info=profile)
             sw = _Sweep(work, bar, task)
@@ -401,11 +418,14 @@ def run_study(scene: str | Path, out: Path | None = None, profile: str = "quick"
             linear_ceiling = float(np.mean([mse_to_psnr(float(np.mean(var))) for _, var in truth.values()]))
             black = float(np.mean([_score({v: np.zeros_like(r)}, {v: (r, s)})["display_psnr"]
                                    for v, (r, s) in truth.items()]))
-            _sweep_reference(sw, rig, scene_file, views, truth, config, seed)
-            poses = _sweep_poses(sw, art / "capture", config)
-            _sweep_slab(sw, art / "capture", truth_dir, capture_s, len(views), config)
-            _sweep_rebin(sw, art / "capture", truth_dir, capture_s, len(views), poses, config)
-            _sweep_nerf(sw, art / "capture", truth_dir, capture_s, views, truth, config, seed)
+            if "reference" in run:
+                _sweep_reference(sw, rig, scene_file, views, truth, config, seed)
+            poses = _sweep_poses(sw, art / "capture", config) if "poses" in run else {}
+            if "slab" in run:
+                _sweep_slab(sw, art / "capture", truth_dir, capture_s, len(views), config)
+                _sweep_rebin(sw, art / "capture", truth_dir, capture_s, len(views), poses, config)
+            if "nerf" in run:
+                _sweep_nerf(sw, art / "capture", truth_dir, capture_s, views, truth, config, seed)
         rows = [r for r in sw.rows]
         ok = [r for r in rows if r["status"] == "ok"]
         fronts = {}

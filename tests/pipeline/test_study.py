@@ -154,3 +154,42 @@ def test_full_profile_sweeps_the_fast_nerf_at_2_5_and_10_minutes():
     minutes of the stage (its wall time on the x axis)."""
     from pipeline.stages.study import PROFILES
     assert [m for model, m in PROFILES["full"].nerf if model == "fast"] == [2.0, 5.0, 10.0]
+
+
+def _study_cli(*args):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYOPENGL_PLATFORM="egl")
+    return subprocess.run([sys.executable, "-m", "pipeline", "study", *map(str, args)],
+                          cwd=Path(__file__).resolve().parents[2], env=env, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_study_only_runs_the_named_sweeps_through_the_cli(tmp_path):
+    """`lumigraph study SCENE --only reference`: the path tracer's sweep and nothing of poses, slab or
+    NeRF (the quick profile would train two NeRFs); its front drawn, the others absent."""
+    scene = write_scene(tmp_path / "scenes", TINY_E2E)
+    out = tmp_path / "study"
+    proc = _study_cli(scene, "--only", "reference", "--out", out, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads((out / "study.json").read_text())["rows"]
+    stages = {r["stage"] for r in rows}
+    assert stages == {"reference"}, stages
+    quick = PROFILES["quick"]
+    assert sum(r["family"] != "truth" for r in rows if r["stage"] == "reference") == len(quick.spp) * len(quick.integrators)
+    assert (out / "pareto_reference.svg").is_file() and not (out / "pareto_nerf.svg").exists()
+    assert json.loads((out / "study.json").read_text())["config"]["stages"] == ["reference"]
+
+
+@pytest.mark.parametrize("args, field", [(("--only", "render"), "--only"),
+                                         (("pose_tolerance", "--only", "nerf"), "--only")])
+def test_study_only_refuses_what_it_cannot_select(tmp_path, args, field):
+    scene_args = args if args[0] == "pose_tolerance" else (write_scene(tmp_path / "scenes", TINY_E2E), *args)
+    out = tmp_path / "study"
+    proc = _study_cli(*scene_args, "--out", out, "--quiet")
+    assert proc.returncode == 2
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and field in lines[0], proc.stderr
+    assert not out.exists()
