@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from recon.nerf.omp import passive_omp_wait
@@ -64,9 +65,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="override a model config field for every run whose model has it, e.g. batch_rays=256")
     a = ap.parse_args(argv)
-    runs = [parse_run(r) for r in (a.run or ["fast", "vanilla", "vanilla_noview", "vanilla_nope"])]
+    try:
+        runs = [parse_run(r) for r in (a.run or ["fast", "vanilla", "vanilla_noview", "vanilla_nope"])]
+        settings = parse_settings(a.set, runs)
+    except ValueError as exc:  # bad input: one line naming the field, exit 2
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     study = run_study(a.capture_dir, runs, a.minutes, a.reference, a.downsample, a.seed, a.eval_every,
-                      clock=a.clock, settings=parse_settings(a.set, runs))
+                      clock=a.clock, settings=settings)
     write_nerf_study(a.out, study)
     print(json.dumps(study.summary, indent=2))
     return 0

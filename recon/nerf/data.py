@@ -18,7 +18,6 @@ in world units, pixel centres at +0.5.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -183,44 +182,6 @@ class PixelSampler:
             o[sel] = torch.from_numpy(ov.astype(np.float32))
             d[sel] = torch.from_numpy(dv.astype(np.float32))
         return o, d
-
-    def block_means(self, block: int) -> torch.Tensor:
-        """(V, H / block, W / block, 3) float32: this level's images area-averaged over block x block
-        pixels (linear light), computed once per block size. Raises ValueError when block does not
-        divide the level's size."""
-        if block < 1 or self.height % block or self.width % block:
-            raise ValueError(f"coarse block {block} does not divide the level's {self.width}x{self.height} pixels")
-        cache = self.__dict__.setdefault("_block_means", {})
-        if block not in cache:
-            cache[block] = torch.stack([torch.from_numpy(area_downsample(im.float().numpy(), block)) for im in self.images])
-        return cache[block]
-
-    def sample_blocks(self, n_blocks: int, block: int, k: int,
-                      generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Pixels drawn in groups: n_blocks random block x block squares of this level (a coarser
-        level's pixels), in each k pixels stratified over a s x s grid of equal cells (s = sqrt(k),
-        k a square, s dividing block; one uniform pixel per cell): every pixel is as likely as with
-        :meth:`sample`. Returns (n_blocks k, 3) origins, unit directions, linear RGB (block-major:
-        rows b k .. b k + k - 1 are block b's) and (n_blocks, 3) each block's area-averaged colour
-        (:meth:`block_means`)."""
-        s = int(round(math.sqrt(k)))
-        if k < 1 or s * s != k or block % s:
-            raise ValueError(f"coarse_group {k}: needs a square number whose root divides the block of {block} pixels")
-        means = self.block_means(block)
-        bh, bw = self.height // block, self.width // block
-        idx = torch.randint(int(means.shape[0]) * bh * bw, (n_blocks,), generator=generator)
-        view, rest = idx // (bh * bw), idx % (bh * bw)
-        brow, bcol = rest // bw, rest % bw
-        cell = block // s
-        cy = torch.arange(s).repeat_interleave(s)   # the k cells of a block, row-major
-        cx = torch.arange(s).repeat(s)
-        jy = torch.randint(cell, (n_blocks, k), generator=generator)
-        jx = torch.randint(cell, (n_blocks, k), generator=generator)
-        row = (brow[:, None] * block + cy[None, :] * cell + jy).reshape(-1)
-        col = (bcol[:, None] * block + cx[None, :] * cell + jx).reshape(-1)
-        view_k = view.repeat_interleave(k)
-        o, d = self._rays(view_k, row, col)
-        return o, d, self.images[view_k, row, col].float(), means[view, brow, bcol]
 
 
 def _read_image(path: Path) -> np.ndarray:

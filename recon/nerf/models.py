@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Literal, get_args
 
 import torch
 import torch.nn.functional as F
@@ -36,7 +37,7 @@ from .volume import STOP_TRANSMITTANCE, alpha_from_tau, composite, exclusive_tra
 from .encoding import SH_DIM, PositionalEncoding, sh_encoding
 from .sampling import march_steps, sample_pdf, stratified
 
-__all__ = ["VanillaConfig", "FastConfig", "RenderOut", "VanillaNeRF", "FastNeRF", "MODELS", "make_model"]
+__all__ = ["VanillaConfig", "FastConfig", "FineLoss", "FINE_LOSSES", "RenderOut", "VanillaNeRF", "FastNeRF", "MODELS", "make_model"]
 
 
 @dataclass
@@ -53,6 +54,10 @@ class RenderOut:
 
 
 # --------------------------------------------------------------------------- configs
+
+#: the fast model's loss on its pyramid levels (:attr:`FastConfig.fine_loss`)
+FineLoss = Literal["display", "tangent"]
+FINE_LOSSES: tuple[str, ...] = get_args(FineLoss)
 
 
 @dataclass(frozen=True)
@@ -138,15 +143,6 @@ class FastConfig:
     #: ``upsample_at``'s): the planes hold the surface textures, the density stays coarser
     app_res_final: int = 400
     app_upsample_at: tuple[float, ...] = (0.5,)
-    #: low-frequency supervision on the levels finer than the working scale: each batch's pixels are
-    #: drawn ``coarse_group`` at a time, stratified inside one working-scale pixel's footprint
-    #: (``PixelSampler.sample_blocks``), and the loss adds ``coarse_loss`` times the error of their
-    #: rendered mean against that footprint's area-averaged colour (0: off, pixels drawn one by one).
-    #: Off: measured (session 33, 3.5 CPU-minutes, 4 held-out views, 1280x960 / 160x120 area-averaged
-    #: display PSNR) 1.0 with 4 pixels 24.00 / 30.28 dB against 24.77 / 29.85 without, and on top of
-    #: ``fine_loss`` "tangent" 23.24 / 30.89 against 24.16 / 31.67
-    coarse_loss: float = 0.0
-    coarse_group: int = 4
     #: the loss on the pyramid levels (``pixel_schedule``; the working scale keeps ``TrainConfig.loss``):
     #: "display" (MSE of the sRGB encodings) or "tangent" (MSE in linear light weighted by the square
     #: of the sRGB curve's slope at the prediction, held constant: the display error to first
@@ -154,10 +150,15 @@ class FastConfig:
     #: pixel's ray cannot resolve, not by its display mean, which is darker: the sRGB curve is
     #: concave). Why: trained on the capture's pixels with "display", the 10-minute stage's 160x120
     #: area average was 0.033 display units darker than the truth on the subject (session 33);
-    #: "tangent" 24.16 / 31.67 dB against 24.77 / 29.85 (figures as for ``coarse_loss``); the
-    #: 10-minute stage (load 0.4-1.7) 26.31 / 34.48 dB, 2649 steps (session 32's quiet: 26.80 / 31.81)
-    fine_loss: str = "tangent"
+    #: "tangent" 24.16 / 31.67 dB against 24.77 / 29.85 (session 33, 3.5 CPU-minutes, 4 held-out
+    #: views, 1280x960 / 160x120 area-averaged display PSNR); the 10-minute stage (load 0.4-1.7)
+    #: 26.31 / 34.48 dB, 2649 steps (session 32's quiet: 26.80 / 31.81)
+    fine_loss: FineLoss = "tangent"
     background: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.fine_loss not in FINE_LOSSES:
+            raise ValueError(f"fine_loss must be one of {', '.join(map(repr, FINE_LOSSES))}, got {self.fine_loss!r}")
 
     def needs_full_images(self) -> bool:
         """Training reads the capture's own images (``load_data(..., train_full=True)``)."""

@@ -49,7 +49,8 @@ _MISSING = object()
 def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
     """``FIELD=VALUE`` strings -> {model: overrides} for :class:`recon.nerf.train.TrainConfig`.
     A field applies to every run whose model config has it (values are parsed as that field's
-    type); a field no run's model has is a ValueError naming it."""
+    type, a text field as given); a field no run's model has, or a value its config refuses, is a
+    ValueError naming the field."""
     per_model: dict[str, list] = {r.model: [] for r in runs}
     for item in items:
         name, sep, text = item.partition("=")
@@ -66,12 +67,19 @@ def parse_settings(items: list[str], runs: list[Run]) -> dict[str, tuple]:
                 value = text.lower() in ("1", "true", "yes")
             elif isinstance(default, float):
                 value = float(text)
+            elif isinstance(default, str):
+                value = text  # a choice (e.g. FastConfig.fine_loss): the config checks it below
             else:
                 raise ValueError(f"--set {item!r}: field {name!r} of model {model!r} cannot be set from the command line")
             per_model[model].append((name, value))
             used = True
         if not used:
             raise ValueError(f"--set {item!r}: no run's model config has a field {name!r}")
+    for model, items_m in per_model.items():
+        try:
+            replace(MODELS[model][1], **dict(items_m))
+        except ValueError as exc:
+            raise ValueError(f"--set: {exc}") from None
     return {m: tuple(v) for m, v in per_model.items()}
 
 

@@ -330,16 +330,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
     gen = torch.Generator().manual_seed(cfg.seed)
     o_all, d_all, c_all = stack_rays(data.train)
     samplers = pixel_samplers(data, model_cfg)
-    coarse_w = float(getattr(model_cfg, "coarse_loss", 0.0))
-    coarse_k = int(getattr(model_cfg, "coarse_group", 1))
-    coarse_root = int(round(math.sqrt(coarse_k)))
-    if coarse_w < 0.0 or not math.isfinite(coarse_w):
-        raise ValueError(f"coarse_loss must be a finite number >= 0, got {coarse_w}")
-    if coarse_w > 0.0 and (coarse_k < 1 or coarse_root * coarse_root != coarse_k):
-        raise ValueError(f"coarse_group must be a square number >= 1, got {coarse_k}")
-    fine_loss = getattr(model_cfg, "fine_loss", "display")
-    if fine_loss not in ("display", "tangent"):
-        raise ValueError(f"fine_loss must be 'display' or 'tangent', got {fine_loss!r}")
+    fine_loss = getattr(model_cfg, "fine_loss", "display")  # FastConfig checks its value
     if hasattr(model, "init_colour"):
         model.init_colour(c_all.mean(dim=0))  # a resumed run loads its own state below
     n_rays = o_all.shape[0]
@@ -490,13 +481,7 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         for group in opt.param_groups:
             group["lr"] = model.learning_rates(progress_now)[group["name"]]
         level = sampler_at(samplers, progress_now)
-        block_target = None
-        if level is not None and coarse_w > 0.0 and data.downsample % level.factor == 0 and \
-                data.downsample // level.factor >= coarse_root:
-            n_blocks = max(model.batch_rays() // coarse_k, 1)
-            o_b, d_b, target, block_target = level.sample_blocks(n_blocks, data.downsample // level.factor,
-                                                                 coarse_k, gen)
-        elif level is not None:
+        if level is not None:
             o_b, d_b, target = level.sample(model.batch_rays(), gen)
         else:
             idx = torch.randint(n_rays, (model.batch_rays(),), generator=gen)
@@ -505,13 +490,6 @@ def train(data: NerfData, cfg: TrainConfig, checkpoint: Path | None = None, resu
         mse = torch.mean((out.rgb - target) ** 2)
         kind = "tangent" if level is not None and cfg.loss == "display" and fine_loss == "tangent" else cfg.loss
         loss = fit_loss([out.rgb, *out.aux], target, kind)
-        enc = srgb_encode if cfg.loss == "display" else (lambda x: x)
-        if block_target is not None:
-            # the footprint's rendered mean (linear light, as a sensor's larger pixel integrates)
-            # against its area-averaged colour: the low frequencies, supervised by every capture
-            # pixel of the footprint rather than the coarse_group drawn
-            block_mean = out.rgb.reshape(-1, coarse_k, 3).mean(dim=1)
-            loss = loss + coarse_w * torch.mean((enc(block_mean) - enc(block_target)) ** 2)
         if not torch.isfinite(loss):
             raise RuntimeError(f"non-finite loss at step {step} (model {cfg.model})")
         opt.zero_grad(set_to_none=True)
