@@ -1,10 +1,11 @@
 """The nerf stage's time plan for its held-out renders (pipeline/stages/nerf.py): the time reserved
 while training is the render the stage then does, and a stage with ``render_full_res`` prices that
-render on the capture-size view and does it within its budget.
+render on the capture-size view and does it, recording its wall time (the 1.1x bound on it is
+timing: bench/bench_nerf_budget.py checks it).
 
 The planner is checked with fake costs per ray on the default scene's sizes (closed form, no
 clock); the stage on the tiny fog-cube capture of tests/recon/nerf_fixtures.py (working scale 16x12,
-capture 32x24) with the fast model shrunk, against the wall clock of a 24-second budget.
+capture 32x24) with the fast model shrunk, on a 24-second budget.
 """
 from __future__ import annotations
 
@@ -20,8 +21,6 @@ from tests.recon.nerf_fixtures import FAST_SMALL, SIZE, make_tiny_capture
 
 #: the default scene: 8 held-out views, working scale 160x120, capture 1280x960; a 10-minute budget
 VIEWS, SMALL, FULL, BUDGET_S = 8, (160, 120), (1280, 960), 600.0
-#: the stage's own phases may overrun its budget by 10% (issue 15: "wall time at most 1.1 M")
-BUDGET_SLACK = 1.1
 
 
 def test_the_time_reserved_is_the_render_done():
@@ -94,7 +93,9 @@ def test_a_capture_resolution_render_once_reserved_stays_reserved():
 def test_stage_with_render_full_res_prices_and_renders_the_capture_size_views(tmp_path):
     """`render_full_res` on a 24 s budget, training until the deadline: the render cost was probed
     on the capture-size view (32x24, the whole view: fewer pixels than a chunk), the held-out views
-    were rendered and scored there, and the stage ended within 1.1x the budget."""
+    were rendered and scored there, and the stage recorded its wall time with phases that add up to
+    it. Whether that wall time stays within 1.1x the budget is timing, checked by
+    bench/bench_nerf_budget.py (this run's shape is its default), not here."""
     capture = make_tiny_capture(tmp_path / "capture")
     out = tmp_path / "nerf" / "fast"
     minutes = 0.4
@@ -104,9 +105,17 @@ def test_stage_with_render_full_res_prices_and_renders_the_capture_size_views(tm
     plan, done = m["time"]["planned"], m["time"]["actual"]
     assert plan["render_full_res"] is True and plan["eval_size"] == [SIZE[0] // 2, SIZE[1] // 2]
     assert plan["probe_size"] == list(SIZE) and plan["probe_rays"] == SIZE[0] * SIZE[1] and plan["probes"] >= 1
+    assert plan["render_s"] > 0 and plan["render_s_per_ray"] > 0
     assert np.isfinite(m["display_psnr_full_mean"]) and all("display_psnr_full" in r for r in m["views"])
     assert done["stopped_by"] == "deadline" and m["steps"] > 0
-    assert done["stage_s"] <= BUDGET_SLACK * minutes * 60.0, m["time"]
+    # the wall time is recorded (metrics.json and the manifest) and its phases account for it: the
+    # untimed gaps between them (planning, the engine) are a small part of it
+    assert m["time"]["budget_s"] == minutes * 60.0
+    phases = done["load_s"] + done["train_total_s"] + done["render_s"] + done["write_s"]
+    assert 0 < phases <= done["stage_s"] + 0.01 and done["stage_s"] - phases <= 0.05 * done["stage_s"], done
+    assert done["train_wall_s"] <= done["train_total_s"] + 0.01
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["metrics"]["stage_s"] == done["stage_s"] and manifest["metrics"]["budget_s"] == minutes * 60.0
     for r in m["views"]:
         assert read_exr(out / "renders" / f"{r['view']}.exr").shape == (SIZE[1], SIZE[0], 3)
 
