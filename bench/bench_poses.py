@@ -171,6 +171,9 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
                        "map_s": m.get("map_time_s"), "refine_s": m.get("refine_time_s"),
                        "extract_cpu_s": m.get("extract_cpu_time_s"), "match_cpu_s": m.get("match_cpu_time_s"),
                        "map_cpu_s": m.get("map_cpu_time_s"), "extractor": m.get("extractor"),
+                       "board_corners": m.get("board_corners"), "corners_s": m.get("corners_time_s"),
+                       "corners_cpu_s": m.get("corners_cpu_time_s"), "corner_tracks": m.get("corner_tracks"),
+                       "corner_observations": m.get("corner_observations"),
                        "first_octave": m.get("first_octave"), "crop_box": _metrics_file(folder / f"poses_{cfg_name}").get("crop_box"),
                        "poses_wall_s": round(time.perf_counter() - t0, 1),
                        "capture_s": round(capture_s, 1), "registered": m.get("views_registered"),
@@ -193,7 +196,8 @@ def scale_benchmark(view_counts: list[int], configs: list[str], keep: Path | Non
 MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "ba": ("final_ba_iterations", int),
              "nocrop": ("crop_to_subject", False), "consecutive": ("pair_offsets", "consecutive"),
              "noretri": ("global_retriangulate", False), "cvsift": ("extractor", "opencv"),
-             "colmapsift": ("extractor", "colmap"), "link": ("link_window", int), "w": ("sequential_overlap", int)}
+             "colmapsift": ("extractor", "colmap"), "link": ("link_window", int), "w": ("sequential_overlap", int),
+             "nocorners": ("board_corners", False), "feat": ("max_features", int)}
 
 
 def _metrics_file(poses: Path) -> dict:
@@ -207,7 +211,8 @@ def colmap_config(name: str):
     modifiers (:data:`MODIFIERS`): ``oN`` SIFT's first octave N, ``tN`` the global mapper's tracks
     per view, ``baN`` final bundle adjustment iterations, ``nocrop`` the whole frame,
     ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation, ``cvsift`` /
-    ``colmapsift`` OpenCV's or COLMAP's SIFT, ``linkN`` the link window, ``wN`` the window; e.g.
+    ``colmapsift`` OpenCV's or COLMAP's SIFT, ``linkN`` the link window, ``wN`` the window,
+    ``nocorners`` without the board's corners as tracks, ``featN`` N SIFT features per image; e.g.
     ``capture_order+global+o0`` or ``auto+nocrop+consecutive`` -> ColmapConfig."""
     from recon.poses import ColmapConfig
 

@@ -29,7 +29,10 @@ whole camera and the lens alone against the truth, :func:`recon.poses.projection
 estimate_time_s, wall_time_s; colmap adds points, models, mean_track_length, its
 options, the matcher and mapper that ran, pairs matched and {extract,match,map,refine}_time_s
 (refine: the part of map after the mapper) with {extract,match,map}_cpu_time_s (CPU seconds),
-first_octave (SIFT's, as resolved; COLMAP's SIFT only), extractor (colmap / opencv), crop_box
+first_octave (SIFT's, as resolved; COLMAP's SIFT only), extractor (colmap / opencv), board_corners
+(whether the board's corners were added as tracks, ColmapConfig.board_corners; then corner_tracks,
+corner_observations, corner_views added, corner_detect_views, corner_detect_s_per_view and
+corners_time_s / corners_cpu_time_s, outside map's), crop_box
 (the input pixels SIFT saw, ``[x0, y0, x1, y1]``, or null for the whole frame), the
 calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
 constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre
@@ -82,6 +85,7 @@ import numpy as np
 from recon.poses import (BoardNotFound, CharucoConfig, ColmapConfig, ReconstructionError, ViewOrder,
                          estimate_charuco, intrinsics_error, projection_error, score_cameras,
                          sequence_rotation_bias, turntable_self_check)
+from recon.poses.board_tracks import board_definitions
 from recon.poses.charuco import calibrate_sequence, make_board
 from recon.poses.colmap import resolve_first_octave
 from recon.poses.colmap_process import estimate_colmap_stoppable
@@ -409,8 +413,12 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
                 metrics.update(calibration="charuco", calibration_requested="auto")
             else:
                 metrics.update(calibration="self", calibration_requested="auto")
+        try:  # the boards' definitions only (where a board lies is the capture's ground truth)
+            boards = board_definitions(cap.targets) if cap.targets and cfg.board_corners is not False else None
+        except ValueError as exc:
+            raise BadInput(f"{cap.folder / 'targets.json'}: {exc}") from None
         try:
-            res = estimate_colmap_stoppable(cap.images, k_given, Path(workdir), cfg, cap.order)
+            res = estimate_colmap_stoppable(cap.images, k_given, Path(workdir), cfg, cap.order, boards)
         except ReconstructionError as exc:
             metrics.update(views_registered=0, registered_fraction=0.0, unregistered=list(truth))
             raise PoseFailure(str(exc), metrics) from None
@@ -423,6 +431,7 @@ def estimate_poses(cap: Capture, method: str, config: PosesConfig = PosesConfig(
                  "camera_model_note": res.lens_note, "lens_steps": res.lens_steps,
                  "observed_radius_rel": res.observed_radius_rel, "rational_refit_px": res.rational_refit_px,
                  "crop_box": None if res.crop_box is None else list(res.crop_box), "extractor": res.extractor,
+                 **res.corner_stats,
                  **{f"{step}_time_s": t for step, t in res.times_s.items()}}
     else:
         cfg = config.charuco

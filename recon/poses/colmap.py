@@ -145,10 +145,12 @@ class ColmapConfig:
       bench_poses_scale.json, 0.0433 deg; 10 more iterations, load 3.4-4.2): with the corners
       (58 tracks, 38,335 observations, every view) 0.0256 deg mean (0.066 max), pitches +0.0044
       (20 deg) / -0.0157 (35) / -0.0152 (50) / -0.0058 (held out) against +0.047 / +0.001 /
-      -0.011 / +0.023; without them 0.0432 (0.140 max): the corners, not the iterations. Not in
-      the stage yet (needs the board definition passed to the mapper and the corners added as
-      keypoints; pycolmap refuses to extend an image's points2D, the probe went through the text
-      model); the board detection cost 513 s for 1000 views on one thread at load ~12.
+      -0.011 / +0.023; without them 0.0432 (0.140 max): the corners, not the iterations. In the
+      stage since session 34: ``board_corners`` below (:mod:`recon.poses.board_tracks`; pycolmap
+      refuses to extend an image's points2D, so the model is rebuilt with the corners appended
+      to each image's keypoints instead of the probe's text-model round trip). The detection,
+      513 s for 1000 views in that probe (one thread, load ~12), measures 0.080 CPU s a view at
+      1280x960 (28 views, load ~2; ``board_tracks.DETECT_SCALE``).
 
     Below 150 views exhaustive matching and the incremental mapper stay the most accurate at a
     cost that is still small; above, pairs must grow linearly and only the global mapper
@@ -169,6 +171,14 @@ class ColmapConfig:
         None (auto): with known intrinsics only; self-calibration keeps the whole frame, as its
         lens figures were measured (a centred box on ``scenes/real_lens.yaml`` keeps 68% of the
         frame; not measured).
+    board_corners: the calibration board's inner corners as extra tracks before the final bundle
+        adjustment (:mod:`recon.poses.board_tracks`: ChArUco detection and cornerSubPix, one track
+        per corner id, triangulated from the mapper's poses; only the board's definition is used,
+        never where it lies). None (auto): on when the board definitions are given (the stage
+        passes the capture's ``targets.json`` boards), the intrinsics are known and a final bundle
+        adjustment runs; True: also with self-calibration (before the lens ladder); False, or no
+        board: the path without them, unchanged. Measured: see "Which observations carry it" above
+        (224 views 0.0196 -> 0.0167 deg, 1000 views 0.0433 -> 0.0256).
     seed: COLMAP's RANSAC seeds (two-view verification, mapper, triangulation) and its global PRNG.
     num_threads: threads of feature extraction and matching (-1 = all cores); the result does not
         depend on it. COLMAP numbers images in the order its extraction threads finish, and the
@@ -203,6 +213,7 @@ class ColmapConfig:
     camera_model: str = "auto"
     final_ba_iterations: int | None = None
     crop_to_subject: bool | None = None
+    board_corners: bool | None = None
     seed: int = 0
     num_threads: int = -1
     global_threads: int = 2
@@ -248,7 +259,11 @@ class ColmapResult:
     ``extract_cpu`` / ``match_cpu`` / ``map_cpu``: CPU seconds of this process's threads in each.
     crop_box: ``(x0, y0, x1, y1)`` input pixels the features were extracted from (the views'
     common box, :func:`subject_box`), None for the whole frame (or when the OpenCV extractor
-    cropped each view to its own box, :func:`view_box`).
+    cropped each view to its own box, :func:`view_box`). corner_stats: the board corners' figures
+    (``board_corners`` False when they were not used, :func:`resolve_board_corners`; else
+    ``corner_tracks`` / ``corner_observations`` / ``corner_views`` added and the detection's
+    ``corner_detect_views`` / ``corner_detect_s_per_view`` (median wall), with ``times_s``'s
+    ``corners`` / ``corners_cpu``, which ``map`` does not count).
     """
 
     cameras: list[Camera]
@@ -269,6 +284,7 @@ class ColmapResult:
     observed_radius_rel: float = 0.0
     crop_box: tuple[int, int, int, int] | None = None
     extractor: str = ""
+    corner_stats: dict = field(default_factory=dict)
 
 
 #: a pixel belongs to the subject when its brightest channel exceeds this (8-bit) after averaging
@@ -475,7 +491,8 @@ def _diagnose(db: Path) -> str:
 
 
 def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
-                    config: ColmapConfig = ColmapConfig(), order: Sequence[ViewOrder] | None = None) -> ColmapResult:
+                    config: ColmapConfig = ColmapConfig(), order: Sequence[ViewOrder] | None = None,
+                    boards: Mapping[str, Mapping] | None = None) -> ColmapResult:
     """Run feature extraction, matching and mapping on ``images``.
 
     images: view name (file stem) -> image file (8-bit PNG/JPEG), all one size.
@@ -483,6 +500,8 @@ def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, w
         ``config.known_intrinsics``, else ignored. workdir: an empty scratch folder (database,
         resized images, raw models). order: the views' shooting order (the capture's
         ``capture_order.json``), needed by the capture_order matcher; views it lacks are refused.
+        boards: the calibration boards' definitions (board name -> ``targets.json``'s ``board``
+        dict, :func:`recon.poses.board_tracks.board_definitions`) for ``config.board_corners``.
         Returns a :class:`ColmapResult` for the largest model.
     Raises :class:`ReconstructionError` when COLMAP builds no model (e.g. a textureless
     object: no features survive matching, the mapper returns nothing).
@@ -492,7 +511,7 @@ def estimate_colmap(images: Mapping[str, Path], intrinsics: Intrinsics | None, w
     level = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = max(level, 2)  # COLMAP's INFO/WARNING chatter off; errors stay
     try:
-        return _estimate(images, intrinsics, workdir, config, order)
+        return _estimate(images, intrinsics, workdir, config, order, boards)
     finally:
         pycolmap.logging.minloglevel = level
 
@@ -552,8 +571,19 @@ def resolve_final_ba_iterations(config: ColmapConfig, mapper: str) -> int:
     return 10 if mapper == "global" else 100
 
 
+def resolve_board_corners(config: ColmapConfig, have_boards: bool, mapper: str) -> bool:
+    """Whether the board's corners become tracks (ColmapConfig.board_corners): never without a
+    board definition; ``None`` (auto): with known intrinsics and a final bundle adjustment."""
+    if not have_boards or config.board_corners is False:
+        return False
+    if config.board_corners:
+        return True
+    return config.known_intrinsics and resolve_final_ba_iterations(config, mapper) > 0
+
+
 def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
-              config: ColmapConfig, order: Sequence[ViewOrder] | None) -> ColmapResult:
+              config: ColmapConfig, order: Sequence[ViewOrder] | None,
+              boards: Mapping[str, Mapping] | None = None) -> ColmapResult:
     import pycolmap
 
     if len(images) < 2:
@@ -683,6 +713,19 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
         raise ReconstructionError(f"COLMAP built no model from {len(names)} images: {_diagnose(db)}")
     rec = max(models.values(), key=lambda m: m.num_reg_images())
 
+    corner_stats: dict = {"board_corners": False}
+    corner_s = corner_cpu = 0.0
+    if resolve_board_corners(config, bool(boards), mapper):
+        from .board_tracks import add_corner_tracks, detect_corners
+
+        tc, cc = time.perf_counter(), time.process_time()
+        found = detect_corners(images, boards, (os.cpu_count() or 1) if config.num_threads < 1 else config.num_threads)
+        sb, off = np.asarray(scale_back, dtype=np.float64), np.asarray(offset, dtype=np.float64)
+        rec, added, _ = add_corner_tracks(rec, found.views, lambda xy: (xy - off) / sb)
+        corner_s, corner_cpu = time.perf_counter() - tc, time.process_time() - cc
+        corner_stats = {"board_corners": True, **added, "corner_detect_views": len(found.views),
+                        "corner_detect_s_per_view": round(float(np.median(found.seconds)), 4)}
+        times["corners"], times["corners_cpu"] = corner_s, corner_cpu
     lens_steps, lens_note = [], ""
     t_refine = time.perf_counter()
     if not fixed:
@@ -691,8 +734,8 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     elif resolve_final_ba_iterations(config, mapper) > 0:
         _bundle_adjust(rec, workdir, resolve_final_ba_iterations(config, mapper), False, False, False)
 
-    times["map"] = time.perf_counter() - t0
-    times["map_cpu"] = time.process_time() - c0
+    times["map"] = time.perf_counter() - t0 - corner_s
+    times["map_cpu"] = time.process_time() - c0 - corner_cpu
     times["refine"] = time.perf_counter() - t_refine  # of map: the final bundle adjustment / lens ladder
     cameras, registered = [], set()
     for img in rec.images.values():
@@ -719,7 +762,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
                         lens_note=lens_note, rational_refit_px=rational_refit_px(next(iter(rec.cameras.values())))
                         * float(np.mean(scale_back)),
                         observed_radius_rel=_observed_radius(rec, scale_back, offset, (width, height)),
-                        crop_box=box, extractor=extractor)
+                        crop_box=box, extractor=extractor, corner_stats=corner_stats)
 
 
 @contextmanager

@@ -36,7 +36,8 @@ POLL_S = 0.2
 
 def estimate_colmap_stoppable(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
                               config: ColmapConfig = ColmapConfig(),
-                              order: Sequence[ViewOrder] | None = None) -> ColmapResult:
+                              order: Sequence[ViewOrder] | None = None,
+                              boards: Mapping[str, Mapping] | None = None) -> ColmapResult:
     """:func:`recon.poses.colmap.estimate_colmap` with the same arguments and result, run in a
     child process that is killed if this call is interrupted (KeyboardInterrupt or any exception
     raised by a signal handler while it waits). Re-raises the child's exception (a bug's carries
@@ -46,7 +47,8 @@ def estimate_colmap_stoppable(images: Mapping[str, Path], intrinsics: Intrinsics
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     request, response = workdir / "request.pkl", workdir / "response.pkl"
-    request.write_bytes(pickle.dumps((dict(images), intrinsics, workdir, config, None if order is None else list(order))))
+    request.write_bytes(pickle.dumps((dict(images), intrinsics, workdir, config, None if order is None else list(order),
+                                       None if boards is None else {k: dict(v) for k, v in boards.items()})))
     child = subprocess.Popen([sys.executable, "-m", "recon.poses.colmap_process", str(workdir)],
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
     try:
@@ -90,9 +92,9 @@ def _child(workdir: Path) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _die_with_parent()
-    images, intrinsics, workdir, config, order = pickle.loads((workdir / "request.pkl").read_bytes())
+    images, intrinsics, workdir, config, order, boards = pickle.loads((workdir / "request.pkl").read_bytes())
     try:
-        res = estimate_colmap(images, intrinsics, workdir, config, order)
+        res = estimate_colmap(images, intrinsics, workdir, config, order, boards)
         (workdir / "result").mkdir()
         res.reconstruction.write(str(workdir / "result"))
         res.reconstruction = None

@@ -8,8 +8,8 @@ import pytest
 
 from bench.bench_poses import LAYOUTS, colmap_config, growth
 from recon.poses import ColmapConfig, ReconstructionError
-from recon.poses.colmap import (resolve_extractor, resolve_final_ba_iterations, resolve_first_octave, resolve_mapper,
-                                resolve_matcher)
+from recon.poses.colmap import (resolve_board_corners, resolve_extractor, resolve_final_ba_iterations,
+                                resolve_first_octave, resolve_mapper, resolve_matcher)
 from recon.poses.colmap_process import estimate_colmap_stoppable
 
 
@@ -46,6 +46,14 @@ def test_auto_resolves_by_view_count():
             c.final_ba_iterations) == ("auto", False, "consecutive", 300, False, 0)
     with pytest.raises(ValueError, match="modifier"):
         colmap_config("auto+fast")
+    assert colmap_config("auto+nocorners").board_corners is False and colmap_config("auto+feat4096").max_features == 4096
+    # the board's corners: never without a board; by default with known intrinsics and a final bundle adjustment
+    assert resolve_board_corners(cfg, True, "global") and resolve_board_corners(cfg, True, "incremental")
+    assert not resolve_board_corners(cfg, False, "global")
+    assert not resolve_board_corners(ColmapConfig(board_corners=False), True, "global")
+    assert not resolve_board_corners(ColmapConfig(final_ba_iterations=0), True, "global")
+    assert not resolve_board_corners(ColmapConfig(known_intrinsics=False), True, "incremental")
+    assert resolve_board_corners(ColmapConfig(known_intrinsics=False, board_corners=True), True, "incremental")
 
 
 def test_growth_exponents_are_the_log_log_slopes():
