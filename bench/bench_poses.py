@@ -197,7 +197,8 @@ MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "
              "nocrop": ("crop_to_subject", False), "consecutive": ("pair_offsets", "consecutive"),
              "noretri": ("global_retriangulate", False), "cvsift": ("extractor", "opencv"),
              "colmapsift": ("extractor", "colmap"), "link": ("link_window", int), "w": ("sequential_overlap", int),
-             "nocorners": ("board_corners", False), "feat": ("max_features", int)}
+             "nocorners": ("board_corners", False), "feat": ("max_features", int),
+             "scale": ("image_scale", float)}
 
 
 def _metrics_file(poses: Path) -> dict:
@@ -212,7 +213,8 @@ def colmap_config(name: str):
     per view, ``baN`` final bundle adjustment iterations, ``nocrop`` the whole frame,
     ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation, ``cvsift`` /
     ``colmapsift`` OpenCV's or COLMAP's SIFT, ``linkN`` the link window, ``wN`` the window,
-    ``nocorners`` without the board's corners as tracks, ``featN`` N SIFT features per image; e.g.
+    ``nocorners`` without the board's corners as tracks, ``featN`` N SIFT features per image,
+    ``scaleS`` images resized by S before extraction; e.g.
     ``capture_order+global+o0`` or ``auto+nocrop+consecutive`` -> ColmapConfig."""
     from recon.poses import ColmapConfig
 

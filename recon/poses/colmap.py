@@ -151,6 +151,14 @@ class ColmapConfig:
       to each image's keypoints instead of the probe's text-model round trip). The detection,
       513 s for 1000 views in that probe (one thread, load ~12), measures 0.080 CPU s a view at
       1280x960 (28 views, load ~2; ``board_tracks.DETECT_SCALE``).
+    * The stage with the corners (session 34; 224 views, ``bench_poses --views 224 --configs C
+      --add``, one config a process at load 1.8-4.6, so CPU seconds): ``auto`` 0.0166 deg mean
+      (0.055 max; 58 tracks, 8,537 observations, corners 16 CPU s), ``auto+nocorners`` 0.0196
+      (0.073), extract / match / map 77 / 68 / 101 and 78 / 71 / 88 CPU s. Cutting SIFT's cost
+      with the corners on: ``image_scale`` 0.75 185 CPU s instead of 245 at 0.0219 deg (without
+      the corners 0.0270), 0.85 215 s at 0.0186; 0.5 113 s
+      at 0.0391; ``max_features`` 1024 163 s at 0.0325, 1536 185 s at 0.0405 (the cap binds below
+      OpenCV's ~1,800 a view; which features survive it moves the ring pitch). Defaults kept.
 
     Below 150 views exhaustive matching and the incremental mapper stay the most accurate at a
     cost that is still small; above, pairs must grow linearly and only the global mapper

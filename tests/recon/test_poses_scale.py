@@ -47,6 +47,7 @@ def test_auto_resolves_by_view_count():
     with pytest.raises(ValueError, match="modifier"):
         colmap_config("auto+fast")
     assert colmap_config("auto+nocorners").board_corners is False and colmap_config("auto+feat4096").max_features == 4096
+    assert colmap_config("auto+scale0.5+feat1024").image_scale == 0.5
     # the board's corners: never without a board; by default with known intrinsics and a final bundle adjustment
     assert resolve_board_corners(cfg, True, "global") and resolve_board_corners(cfg, True, "incremental")
     assert not resolve_board_corners(cfg, False, "global")
