@@ -46,7 +46,8 @@ def _working_psnr(model, data) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("capture_dir")
+    ap.add_argument("capture_dir", nargs="?", default="artifacts/turntable/capture",
+                    help="a capture folder (default: the default scene's, as `make demo` writes it)")
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--pixels", type=int, default=20000, help="random capture pixels per held-out view")
     ap.add_argument("--variants", default="working,pixels,c2f")

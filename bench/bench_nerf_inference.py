@@ -29,10 +29,14 @@ from render.metrics import psnr, to_display
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("capture_dir")
-    ap.add_argument("checkpoint")
+    ap.add_argument("capture_dir", nargs="?", default="artifacts/turntable/capture",
+                    help="a capture folder (default: the default scene's, as `make demo` writes it)")
+    ap.add_argument("checkpoint", nargs="?", default="artifacts/turntable/nerf/fast/checkpoint.pt",
+                    help="a fast NeRF checkpoint (default: the demo's)")
     ap.add_argument("--rows-every", type=int, default=16, help="profile every N-th row of the first held-out view")
     a = ap.parse_args(argv)
+    if not os.path.isfile(a.checkpoint):
+        raise FileNotFoundError(f"checkpoint {a.checkpoint} not found: run `make demo` first or name one")
     torch.set_num_threads(2)
     data = load_data(a.capture_dir)
     state = torch.load(a.checkpoint, weights_only=False)

@@ -13,11 +13,15 @@ def main(argv: list[str]) -> int:
     for name in names:
         print(f"== {name}", flush=True)
         t0 = time.perf_counter()
+        saved = sys.argv
+        sys.argv = [f"bench.{name}"]  # a benchmark's argparse must see its defaults, not run_all's names
         try:
             importlib.import_module(f"bench.{name}").main()
-        except Exception as exc:  # keep going: one broken benchmark must not hide the others
+        except (Exception, SystemExit) as exc:  # keep going: one broken benchmark must not hide the others
             print(f"{name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
             failed.append(name)
+        finally:
+            sys.argv = saved
         print(f"== {name} done in {time.perf_counter() - t0:.1f} s", flush=True)
     return 1 if failed else 0
 
