@@ -28,6 +28,8 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .._kernel_cache import skip_numba_blas_probe
 from ..sobol import DIRECTIONS, REPLICATES
@@ -147,6 +149,34 @@ def kernel_scene(geom, mats, lights, ids: np.ndarray, emit_ids: np.ndarray, back
         i64(lights.d_kind), f64(lights.d_pos), f64(lights.d_dir), f64(lights.d_I), f64(lights.d_cos),
         i64(ids if len(ids) else np.zeros(1, np.int64)), i64(emit_ids if len(emit_ids) else np.zeros(1, np.int64)),
         f64(np.asarray(background, dtype=np.float64).reshape(3)), np.array([geom.extent, floor, lights.n_area], np.float64))
+
+
+# ------------------------------------------------------------------ borrowed arrays
+@intrinsic
+def _borrow(typingctx, arr):
+    """``arr`` as a borrowed view: the same data, shape and strides with a NULL meminfo, so
+    numba's reference counting skips it (NRT_incref / NRT_decref return at once on NULL).
+
+    Why: the helpers below are inlined into the bounce kernel at numba's IR level, and every
+    array argument of an inlined call costs an atomic NRT_incref / NRT_decref pair per call
+    (per path and bounce) that LLVM's refcount pruning cannot remove across the branches. On
+    the Cornell box that was half of shade_bounce's time on one thread, more on two (both
+    threads' atomics hit the same shared scene arrays' counters). Use only on arrays the
+    caller keeps alive for the whole kernel call (arguments), and never return or store the
+    view."""
+    def codegen(context, builder, signature, args):
+        src = context.make_array(arr)(context, builder, value=args[0])
+        out = context.make_array(arr)(context, builder)
+        out.meminfo = cgutils.get_null_value(src.meminfo.type)
+        out.parent = cgutils.get_null_value(src.parent.type)
+        out.nitems = src.nitems
+        out.itemsize = src.itemsize
+        out.data = src.data
+        out.shape = src.shape
+        out.strides = src.strides
+        return out._getvalue()
+
+    return arr(arr), codegen
 
 
 # ------------------------------------------------------------------ RNG (render.sampling's hash)
@@ -688,10 +718,18 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
     roulette = cfg.roulette and depth >= cfg.rr_depth
     extent, floor, n_area = ks.scal[0], ks.scal[1], np.int64(ks.scal[2])
     base = 2 + 8 * depth
-    bg = ks.bg
-    ids, tri_obj, tris, kinds, albedo, iors, Le = ks.ids, ks.tri_obj, ks.tri, ks.kind, ks.albedo, ks.ior, ks.Le
-    emits, two_sided, tex, uv, tex_data, tri_pdf_area = ks.emits, ks.two_sided, ks.tex, ks.uv, ks.tex_data, ks.tri_pdf_area
-    cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos = ks.cdf, ks.pmf, ks.area, ks.d_kind, ks.d_pos, ks.d_dir, ks.d_I, ks.d_cos
+    bg = _borrow(ks.bg)
+    B = _borrow  # no atomic reference counting per inlined helper call (see _borrow)
+    ids, tri_obj, tris, kinds, albedo, iors, Le = B(ks.ids), B(ks.tri_obj), B(ks.tri), B(ks.kind), B(ks.albedo), B(ks.ior), B(ks.Le)
+    emits, two_sided, tex, uv = B(ks.emits), B(ks.two_sided), B(ks.tex), B(ks.uv)
+    tex_data, tri_pdf_area = B(ks.tex_data), B(ks.tri_pdf_area)
+    cdf, pmf, area, d_kind, d_pos = B(ks.cdf), B(ks.pmf), B(ks.area), B(ks.d_kind), B(ks.d_pos)
+    d_dir, d_I, d_cos = B(ks.d_dir), B(ks.d_I), B(ks.d_cos)
+    prim, tfar, hu, hv, idx, keys, beta, d32 = B(prim), B(tfar), B(hu), B(hv), B(idx), B(keys), B(beta), B(d32)
+    pdf, flags, L = B(pdf), B(flags), B(L)
+    n_idx, n_keys, n_beta, n_pdf, n_flags, n_o32, n_d32 = B(n_idx), B(n_keys), B(n_beta), B(n_pdf), B(n_flags), B(n_o32), B(n_d32)
+    q_o32, q_d32, q_t32, q_idx, q_val = B(q_o32), B(q_d32), B(q_t32), B(q_idx), B(q_val)
+    l_o32, l_d32, l_beta, l_pdf, l_idx = B(l_o32), B(l_d32), B(l_beta), B(l_pdf), B(l_idx)
     has_lights = cdf[len(cdf) - 1] > 0.0  # LightSet.empty is False
     nn = 0
     nq = 0
@@ -788,7 +826,7 @@ def last_bounce_queue(ks, cfg, n, prim, tfar, l_beta, l_pdf, l_idx, l_o32, l_d32
     emission; a miss queues one to infinity with the background (when lit). Appends to the
     shadow queue from q0; returns the new queue length."""
     queried = len(prim) > 0
-    bg = ks.bg
+    bg = _borrow(ks.bg)
     nq = q0
     for j in range(n):
         if queried and prim[j] >= 0:

@@ -107,3 +107,29 @@ def test_renders_do_not_depend_on_threads():
     # samples are summed per pixel in sample order, so the batch size does not matter either
     big = render(sc, cam, RenderSettings(integrator="path", spp=16, seed=4), prepared=ps)
     assert np.array_equal(big.film.s1, one.film.s1) and np.array_equal(big.film.s2, one.film.s2)
+
+
+def test_borrowed_view_shares_data_and_leaves_the_reference_count():
+    """path_kernels._borrow: the bounce kernel's arrays without reference counting: a view of the
+    same memory (writes land in the caller's array, shape and strides kept) that takes no
+    reference (the caller's count is unchanged after many borrows)."""
+    import sys
+
+    from numba import njit
+
+    from render.integrators.path_kernels import _borrow
+
+    @njit
+    def write_through(a, reps):
+        for r in range(reps):
+            v = _borrow(a)
+            v[1, 2] += 1.0
+        v = _borrow(a)
+        return v.shape[0], v.shape[1], v.strides[0], v[1, 2]
+
+    a = np.zeros((3, 4))
+    before = sys.getrefcount(a)
+    rows, cols, stride, last = write_through(a, 5)
+    assert (rows, cols, stride) == (3, 4, 32)
+    assert a[1, 2] == 5.0 and last == 5.0 and a.sum() == 5.0
+    assert sys.getrefcount(a) == before
