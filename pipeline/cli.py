@@ -117,7 +117,8 @@ def poses(capture_dir: Path = typer.Argument(..., help="a capture folder"),
                                                                "sequence, else its views' boards, held fixed) | auto "
                                                                "(the sequence if it has one that fits, else self); "
                                                                "default auto with --self-calibrate, else known"),
-          image_scale: float = typer.Option(1.0, help="COLMAP: scale images before feature extraction"),
+          image_scale: Optional[float] = typer.Option(None, help="COLMAP: scale images before feature extraction "
+                                                                 "(default: 1, 0.75 from 500 views on)"),
           max_features: int = typer.Option(8192, help="COLMAP: SIFT features per image"),
           matcher: str = typer.Option("auto", help="COLMAP: auto | exhaustive | capture_order | sequential"),
           mapper: str = typer.Option("auto", help="COLMAP: auto | incremental | global"),

@@ -25,6 +25,7 @@ import os
 import shutil
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -57,7 +58,11 @@ class ColmapConfig:
         mapper runs on SIMPLE_RADIAL (focal and k1 refined); :func:`calibrate_lens` then frees the
         principal point and climbs one model at a time to the one asked for, or with ``auto`` to
         the richest the views constrain (a likelihood-ratio test per step).
-    image_scale: resize factor applied before feature extraction (1 = capture resolution).
+    image_scale: resize factor applied before feature extraction (1 = capture resolution); None
+        (auto): :func:`resolve_image_scale` (1, or :data:`LARGE_IMAGE_SCALE` from
+        ``large_min_images`` views on).
+    large_min_images: the view count from which ``image_scale`` None stands for
+        :data:`LARGE_IMAGE_SCALE`.
     max_features: SIFT features per image.
     first_octave: SIFT's first octave: -1 doubles the image first (COLMAP's default: finer
         features, 4x the pixels to filter), 0 starts at the image's own size (~4x faster, twice
@@ -205,7 +210,8 @@ class ColmapConfig:
     """
 
     known_intrinsics: bool = True
-    image_scale: float = 1.0
+    image_scale: float | None = None
+    large_min_images: int = 500
     max_features: int = 8192
     first_octave: int | None = None
     extractor: Literal["auto", "colmap", "opencv"] = "auto"
@@ -227,7 +233,7 @@ class ColmapConfig:
     global_threads: int = 2
 
     def __post_init__(self) -> None:
-        if not 0.05 <= self.image_scale <= 4.0:
+        if self.image_scale is not None and not 0.05 <= self.image_scale <= 4.0:
             raise ValueError(f"image_scale must be in [0.05, 4], got {self.image_scale}")
         if self.first_octave is not None and self.first_octave not in (-1, 0, 1):
             raise ValueError(f"first_octave must be -1, 0 or 1, got {self.first_octave}")
@@ -243,6 +249,8 @@ class ColmapConfig:
             raise ValueError(f"pair_offsets must be consecutive or doubling, got {self.pair_offsets!r}")
         if self.sequential_overlap < 1 or self.link_window < 0:
             raise ValueError("sequential_overlap must be >= 1 and link_window >= 0")
+        if self.large_min_images < 2:
+            raise ValueError(f"large_min_images must be >= 2, got {self.large_min_images}")
         if self.global_threads < 1:
             raise ValueError(f"global_threads must be >= 1, got {self.global_threads}")
         if self.camera_model != "auto" and self.camera_model not in CAMERA_MODELS:
@@ -271,7 +279,12 @@ class ColmapResult:
     (``board_corners`` False when they were not used, :func:`resolve_board_corners`; else
     ``corner_tracks`` / ``corner_observations`` / ``corner_views`` added and the detection's
     ``corner_detect_views`` / ``corner_detect_s_per_view`` (median wall), with ``times_s``'s
-    ``corners`` / ``corners_cpu``, which ``map`` does not count).
+    ``corners`` / ``corners_cpu``, which ``map`` does not count: the detection runs beside the
+    mapper (:class:`recon.poses.board_tracks.CornerJob`), so ``corners`` is the wall the stage
+    waited for it after the mapper (``corners_wait``) plus the tracks' building
+    (``corners_tracks``), and ``corners_detect`` the detection's own wall span; ``corners_cpu``
+    the detection's thread CPU seconds plus the tracks'). image_scale: the scale the images were
+    resized by (``auto`` resolved, :func:`resolve_image_scale`).
     """
 
     cameras: list[Camera]
@@ -293,6 +306,7 @@ class ColmapResult:
     crop_box: tuple[int, int, int, int] | None = None
     extractor: str = ""
     corner_stats: dict = field(default_factory=dict)
+    image_scale: float = 1.0
 
 
 #: a pixel belongs to the subject when its brightest channel exceeds this (8-bit) after averaging
@@ -362,30 +376,35 @@ def subject_box(images: Sequence[Path], centred: bool = False) -> tuple[int, int
 
 
 def _prepare_images(images: Mapping[str, Path], scale: float, folder: Path,
-                    box: tuple[int, int, int, int] | None = None) -> list[str]:
+                    box: tuple[int, int, int, int] | None = None, threads: int = 1) -> list[str]:
     """Copy (scale 1, no box) or crop to ``box`` (x0, y0, x1, y1) and resize (INTER_AREA down,
-    INTER_CUBIC up) every image into ``folder``; PNGs written at compression 1 (speed)."""
+    INTER_CUBIC up) every image into ``folder``; PNGs written at compression 1 (speed).
+    ``threads`` images at a time (OpenCV's read, resize and write release the GIL: at 1000 views
+    and scale 0.75 this ran serially, 160 s of extraction's wall against 261 CPU s on 2 cores)."""
     folder.mkdir(parents=True, exist_ok=True)
-    names = []
-    for stem, path in images.items():
+
+    def one(item: tuple[str, Path]) -> str:
+        stem, path = item
         name = f"{stem}{Path(path).suffix.lower() or '.png'}"
         if scale == 1.0 and box is None:
             shutil.copyfile(path, folder / name)
-        else:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise ReconstructionError(f"{path}: unreadable image")
-            if box is not None:
-                x0, y0, x1, y1 = box
-                img = img[y0:y1, x0:x1]
-            h, w = img.shape[:2]
-            if scale != 1.0:
-                size = (int(round(w * scale)), int(round(h * scale)))  # as Intrinsics.scaled
-                interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
-                img = cv2.resize(img, size, interpolation=interp)
-            cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
-        names.append(name)
-    return names
+            return name
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ReconstructionError(f"{path}: unreadable image")
+        if box is not None:
+            x0, y0, x1, y1 = box
+            img = img[y0:y1, x0:x1]
+        h, w = img.shape[:2]
+        if scale != 1.0:
+            size = (int(round(w * scale)), int(round(h * scale)))  # as Intrinsics.scaled
+            interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC
+            img = cv2.resize(img, size, interpolation=interp)
+        cv2.imwrite(str(folder / name), img, [cv2.IMWRITE_PNG_COMPRESSION, 1])
+        return name
+
+    with ThreadPoolExecutor(max(int(threads), 1)) as pool:
+        return list(pool.map(one, images.items()))
 
 
 def _image_size(path: Path) -> tuple[int, int]:
@@ -540,6 +559,26 @@ def resolve_mapper(config: ColmapConfig, n_images: int) -> str:
     return "global" if n_images >= config.global_min_images else "incremental"
 
 
+#: the image scale ``image_scale`` None stands for from ``large_min_images`` views on
+LARGE_IMAGE_SCALE = 0.75
+
+
+def resolve_image_scale(config: ColmapConfig, n_images: int) -> float:
+    """The image scale ``None`` stands for (ColmapConfig.image_scale): 1 below
+    ``config.large_min_images`` views, :data:`LARGE_IMAGE_SCALE` from there on. Measured with the
+    board corners (``bench_poses --views N --configs auto,auto+scale0.75``, one config a process):
+    224 views 0.0166 deg mean at scale 1 against 0.0219 at 0.75 (245 -> 185 CPU s), where the
+    stage takes ~4.5 minutes either way, so full scale stays; 1000 views (quiet, session 34)
+    0.0249 deg in 711.6 s wall at scale 1 against 0.0286 deg in 615.9 s at 0.75 (CPU 1139 ->
+    945 s): at full scale the 10-minute goal is out of reach on 2 cores (the CPU seconds alone,
+    perfectly shared, take 570 s), at 0.75 it is within reach and the rotation error stays under
+    0.03. The switch at 500 views is a choice between the two measured counts (near their
+    geometric mean, 473); no count between them was measured."""
+    if config.image_scale is not None:
+        return config.image_scale
+    return LARGE_IMAGE_SCALE if n_images >= config.large_min_images else 1.0
+
+
 def resolve_first_octave(config: ColmapConfig, n_images: int) -> int:
     """SIFT's first octave ``None`` stands for (ColmapConfig.first_octave): -1 (the image doubled
     first, COLMAP's default) at every view count. Measured (bench_poses --views 224, 1280x960,
@@ -589,6 +628,36 @@ def resolve_board_corners(config: ColmapConfig, have_boards: bool, mapper: str) 
     return config.known_intrinsics and resolve_final_ba_iterations(config, mapper) > 0
 
 
+def resolve_final_ba_threads(config: ColmapConfig, mapper: str) -> int:
+    """Threads of the final bundle adjustment: ``global_threads`` after the global mapper (whose
+    own bundle adjustment already runs on them: rounding-level differences from one thread,
+    ColmapConfig), 1 after the incremental mapper (bit-identical runs)."""
+    return config.global_threads if mapper == "global" else 1
+
+
+def _map(config: ColmapConfig, mapper: str, db: Path, image_dir: Path, workdir: Path, n_images: int):
+    """COLMAP's mapper on the matched database: {model index: pycolmap.Reconstruction}."""
+    import pycolmap
+
+    fixed = config.known_intrinsics
+    if mapper == "global":
+        with _info_lines_dropped(workdir / "mapper.log"):
+            return pycolmap.global_mapping(db, image_dir, workdir / "sparse", options=_global_options(config, n_images))
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.random_seed = config.seed
+    opts.mapper.random_seed = config.seed
+    opts.triangulation.random_seed = config.seed
+    opts.num_threads = 1  # scheduling-independent (see ColmapConfig)
+    opts.mapper.num_threads = 1
+    opts.min_model_size = min(10, n_images)
+    opts.ba_refine_focal_length = not fixed
+    opts.ba_refine_extra_params = not fixed
+    opts.ba_refine_principal_point = False  # freed after mapping (calibrate_lens)
+    opts.mapper.abs_pose_refine_focal_length = not fixed
+    opts.mapper.abs_pose_refine_extra_params = not fixed
+    return pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
+
+
 def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir: Path,
               config: ColmapConfig, order: Sequence[ViewOrder] | None,
               boards: Mapping[str, Mapping] | None = None) -> ColmapResult:
@@ -619,11 +688,13 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     width, height = _image_size(Path(first))
     crop = config.known_intrinsics if config.crop_to_subject is None else config.crop_to_subject
     extractor = resolve_extractor(config, len(images))
+    image_scale = resolve_image_scale(config, len(images))
+    threads = (os.cpu_count() or 1) if config.num_threads < 1 else config.num_threads
     # OpenCV's extraction crops each view to its own box as it reads it (one read, no re-encoded
     # copy); COLMAP's reads files, so those are cropped to the views' common box first
     box = subject_box(list(images.values()), centred=not config.known_intrinsics) if crop and extractor == "colmap" else None
     x0, y0, x1, y1 = box or (0, 0, width, height)
-    names = _prepare_images(images, config.image_scale, image_dir, box)
+    names = _prepare_images(images, image_scale, image_dir, box, threads)
     sw, sh = _image_size(image_dir / names[0])
     scale_back = ((x1 - x0) / sw, (y1 - y0) / sh)  # working pixel -> input pixel, after the crop's offset
     offset = (float(x0), float(y0))
@@ -647,9 +718,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
     extraction.sift.first_octave = resolve_first_octave(config, len(names))
     extraction.use_gpu = False
     if extractor == "opencv":
-        extract_opencv_sift(db, image_dir, names, config.max_features,
-                            (os.cpu_count() or 1) if config.num_threads < 1 else config.num_threads,
-                            view_box if crop else None)
+        extract_opencv_sift(db, image_dir, names, config.max_features, threads, view_box if crop else None)
     else:
         pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                                   reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -698,49 +767,54 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
 
     fixed = config.known_intrinsics
     (workdir / "sparse").mkdir(exist_ok=True)
-    if mapper == "global":
-        with _info_lines_dropped(workdir / "mapper.log"):
-            models = pycolmap.global_mapping(db, image_dir, workdir / "sparse",
-                                             options=_global_options(config, len(names)))
-    else:
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.random_seed = config.seed
-        opts.mapper.random_seed = config.seed
-        opts.triangulation.random_seed = config.seed
-        opts.num_threads = 1  # scheduling-independent (see ColmapConfig)
-        opts.mapper.num_threads = 1
-        opts.min_model_size = min(10, len(names))
-        opts.ba_refine_focal_length = not fixed
-        opts.ba_refine_extra_params = not fixed
-        opts.ba_refine_principal_point = False  # freed after mapping (calibrate_lens)
-        opts.mapper.abs_pose_refine_focal_length = not fixed
-        opts.mapper.abs_pose_refine_extra_params = not fixed
-        models = pycolmap.incremental_mapping(db, image_dir, workdir / "sparse", options=opts)
+    # the board's corners are detected beside the mapper, on threads at the lowest priority (the
+    # mapper leaves part of the 2 cores idle); they are needed only after it
+    corner_job = None
+    if resolve_board_corners(config, bool(boards), mapper):
+        from .board_tracks import CornerJob
+
+        corner_job = CornerJob(images, boards, threads)
+    try:
+        models = _map(config, mapper, db, image_dir, workdir, len(names))
+    except BaseException:
+        if corner_job is not None:
+            corner_job.cancel()
+        raise
     models = {i: m for i, m in (models or {}).items() if m.num_reg_images() > 0}
     if not models:
+        if corner_job is not None:
+            corner_job.cancel()
         raise ReconstructionError(f"COLMAP built no model from {len(names)} images: {_diagnose(db)}")
     rec = max(models.values(), key=lambda m: m.num_reg_images())
 
     corner_stats: dict = {"board_corners": False}
     corner_s = corner_cpu = 0.0
-    if resolve_board_corners(config, bool(boards), mapper):
-        from .board_tracks import add_corner_tracks, detect_corners
+    if corner_job is not None:
+        from .board_tracks import add_corner_tracks
 
-        tc, cc = time.perf_counter(), time.process_time()
-        found = detect_corners(images, boards, (os.cpu_count() or 1) if config.num_threads < 1 else config.num_threads)
+        # corners: the wall the stage waited for the detection plus the tracks' building;
+        # corners_cpu: the detection's thread CPU (also inside map_cpu's process total) plus the tracks'
+        tc = time.perf_counter()
+        found = corner_job.result()
+        waited = time.perf_counter() - tc
         sb, off = np.asarray(scale_back, dtype=np.float64), np.asarray(offset, dtype=np.float64)
+        tt, ct = time.perf_counter(), time.process_time()
         rec, added, _ = add_corner_tracks(rec, found.views, lambda xy: (xy - off) / sb)
-        corner_s, corner_cpu = time.perf_counter() - tc, time.process_time() - cc
+        track_s = time.perf_counter() - tt
+        corner_s = time.perf_counter() - tc
+        corner_cpu = found.cpu_s + (time.process_time() - ct)
         corner_stats = {"board_corners": True, **added, "corner_detect_views": len(found.views),
                         "corner_detect_s_per_view": round(float(np.median(found.seconds)), 4)}
         times["corners"], times["corners_cpu"] = corner_s, corner_cpu
+        times["corners_detect"], times["corners_wait"], times["corners_tracks"] = found.wall_s, waited, track_s
     lens_steps, lens_note = [], ""
     t_refine = time.perf_counter()
     if not fixed:
         rec, lens_steps, lens_note = calibrate_lens(rec, workdir, config.camera_model,
                                                     100 if config.final_ba_iterations is None else max(config.final_ba_iterations, 1))
     elif resolve_final_ba_iterations(config, mapper) > 0:
-        _bundle_adjust(rec, workdir, resolve_final_ba_iterations(config, mapper), False, False, False)
+        _bundle_adjust(rec, workdir, resolve_final_ba_iterations(config, mapper), False, False, False,
+                       resolve_final_ba_threads(config, mapper))
 
     times["map"] = time.perf_counter() - t0 - corner_s
     times["map_cpu"] = time.process_time() - c0 - corner_cpu
@@ -770,7 +844,7 @@ def _estimate(images: Mapping[str, Path], intrinsics: Intrinsics | None, workdir
                         lens_note=lens_note, rational_refit_px=rational_refit_px(next(iter(rec.cameras.values())))
                         * float(np.mean(scale_back)),
                         observed_radius_rel=_observed_radius(rec, scale_back, offset, (width, height)),
-                        crop_box=box, extractor=extractor, corner_stats=corner_stats)
+                        crop_box=box, extractor=extractor, corner_stats=corner_stats, image_scale=image_scale)
 
 
 @contextmanager
@@ -909,9 +983,9 @@ def _residuals(rec, obs) -> np.ndarray:
 
 
 def _bundle_adjust(rec, workdir: Path, iterations: int, refine_focal: bool, refine_principal_point: bool,
-                   refine_extra: bool) -> None:
-    """One global bundle adjustment of ``rec`` in place: Cauchy loss, tight tolerances, one
-    thread (scheduling-independent); glog's INFO lines dropped."""
+                   refine_extra: bool, threads: int = 1) -> None:
+    """One global bundle adjustment of ``rec`` in place: Cauchy loss, tight tolerances, ``threads``
+    threads (1: scheduling-independent); glog's INFO lines dropped."""
     import pycolmap
 
     ba = pycolmap.BundleAdjustmentOptions()
@@ -923,7 +997,7 @@ def _bundle_adjust(rec, workdir: Path, iterations: int, refine_focal: bool, refi
     so = ba.ceres.solver_options
     so.max_num_iterations = iterations
     so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 1e-12, 1e-12, 1e-12
-    so.num_threads = 1
+    so.num_threads = threads
     with _info_lines_dropped(workdir / "ba.log"):
         pycolmap.bundle_adjustment(rec, ba)
 

@@ -103,3 +103,65 @@ def test_a_malformed_board_definition_is_one_line_naming_the_file(small_capture,
     assert "\n" not in str(exc.value) and not (tmp_path / "poses").exists()
     with pytest.raises(ValueError, match="field 'board'"):
         board_definitions({"b": {"board_to_world": []}})
+
+
+def test_corners_detected_beside_a_busy_thread_are_those_of_the_serial_order(small_capture):
+    """CornerJob (the stage's detection beside the mapper, threads at nice 19) while this thread
+    keeps a core busy: the same views, corner ids and positions, bit for bit, as detect_corners
+    on one thread in series, and its threads back at their priority once waited for."""
+    import time
+
+    cap = load_capture(small_capture)
+    boards = board_definitions(cap.targets)
+    serial = detect_corners(cap.images, boards, threads=1)
+    from recon.poses.board_tracks import CornerJob
+
+    job = CornerJob(cap.images, boards, threads=2)
+    t = time.perf_counter()
+    x = 0.0
+    while time.perf_counter() - t < 0.5:  # the "mapper": a busy core
+        x += 1.0
+    found = job.result()
+    assert list(found.views) == list(serial.views) and len(found.views) >= 14
+    for name, (keys, xy) in serial.views.items():
+        assert found.views[name][0] == keys
+        np.testing.assert_array_equal(found.views[name][1], xy)
+    assert len(found.seconds) == len(cap.images) and found.cpu_s > 0 and found.wall_s > 0
+
+
+def test_the_stage_with_the_overlapped_corners_gives_the_serial_orders_poses(small_capture, tmp_path, monkeypatch):
+    """estimate_colmap with the corners detected beside the mapper (the default) and with a
+    CornerJob that detects them in series before the mapper starts (the previous order): the same
+    corner figures and the same cameras to 1e-9 deg (one thread everywhere, incremental mapper)."""
+    from recon.poses import board_tracks
+    from recon.poses.colmap import estimate_colmap
+    from render.camera_io import read_cameras_json
+
+    cap = load_capture(small_capture)
+    truth, _ = read_cameras_json(small_capture / "cameras.json")
+    boards = board_definitions(cap.targets)
+    cfg = ColmapConfig(num_threads=1, global_threads=1)
+    overlapped = estimate_colmap(cap.images, truth[0].intrinsics, tmp_path / "overlap", cfg, boards=boards)
+
+    class SerialJob:
+        def __init__(self, images, boards, threads=1, **_):
+            self.found = detect_corners(images, boards, threads)
+
+        def result(self):
+            return self.found
+
+        def cancel(self):
+            pass
+
+    monkeypatch.setattr(board_tracks, "CornerJob", SerialJob)
+    serial = estimate_colmap(cap.images, truth[0].intrinsics, tmp_path / "serial", cfg, boards=boards)
+    for key in ("corner_tracks", "corner_observations", "corner_views", "corner_detect_views"):
+        assert overlapped.corner_stats[key] == serial.corner_stats[key], key
+    assert overlapped.corner_stats["corner_tracks"] >= 50
+    assert {"corners_wait", "corners_detect", "corners_tracks"} <= set(overlapped.times_s)
+    assert [c.name for c in overlapped.cameras] == [c.name for c in serial.cameras] and len(serial.cameras) == 20
+    R0 = np.array([c.cam_to_world[:3, :3] for c in overlapped.cameras])
+    R1 = np.array([c.cam_to_world[:3, :3] for c in serial.cameras])
+    D = np.einsum("nji,njk->nik", R0, R1)
+    w = 0.5 * np.stack([D[:, 2, 1] - D[:, 1, 2], D[:, 0, 2] - D[:, 2, 0], D[:, 1, 0] - D[:, 0, 1]], 1)
+    assert np.degrees(np.arcsin(np.linalg.norm(w, axis=1))).max() < 1e-9
