@@ -87,3 +87,38 @@ def test_offsets_prevent_self_intersection_at_millimetre_scale(shift):
     h = acc.intersect(o, w)
     assert not np.any(h.tri == tri), f"{np.sum(h.tri == tri)} self-intersections"
     acc.close()
+
+
+def test_compiled_packet_queries_equal_embreex_ray_by_ray():
+    """render.embree_direct traces packets of PACKET rays (the last one padded with invalid
+    lanes): every ray's hit is the same bits whatever the batch length (not a multiple of the
+    packet) and whichever rays share its packet, the same triangle as embreex's (t, u, v to
+    float32 rounding), and its occlusion equals embreex's."""
+    from render import embree_direct
+
+    if not embree_direct.AVAILABLE:
+        pytest.skip("embreex's Embree library not found")
+    sc, cam = cornell_scene(), cornell_camera(9, 7)
+    acc = Accel(sc, threads=1)
+    rng = np.random.default_rng(5)
+    o, d = cam.pixel_rays(rng.random((301, 2)) * [9, 7])
+    # half camera rays, half rays from inside the box in random directions (hits on every wall)
+    o[150:] = acc.geometry.v0.mean(0) + 0.1 * rng.standard_normal((151, 3))
+    d[150:] = rng.standard_normal((151, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o32, d32 = np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32)
+    t32 = (rng.random(len(o)) * acc.geometry.extent).astype(np.float32)
+    ref, ref_occ = acc.intersect_raw(o32, d32), acc.occluded_raw(o32, d32, t32.copy())
+    assert 0.6 < np.mean(ref[0] >= 0) < 1.0 and 0.2 < np.mean(ref_occ == -1) < 0.9  # misses too (open front)
+    full = acc.intersect_fast(o32, d32)
+    h = full[0] >= 0
+    assert np.array_equal(full[0], ref[0])  # embreex's own ray struct path: t, u, v to float32 rounding
+    assert np.allclose(full[1][h], ref[1][h], rtol=1e-5) and np.allclose(full[2][h], ref[2][h], atol=1e-5)
+    for a, b in ((0, 1), (3, 12), (5, 300), (17, 40)):  # lengths 1, 9, 295, 23: other packets, padded ends
+        got = acc.intersect_fast(o32[a:b], d32[a:b])
+        hh = got[0] >= 0
+        assert np.array_equal(got[0], full[0][a:b])
+        for k in (1, 2, 3):
+            assert np.array_equal(got[k][hh], full[k][a:b][hh])
+        assert np.array_equal(acc.occluded_fast(o32[a:b], d32[a:b], t32[a:b]), ref_occ[a:b])
+    acc.close()
