@@ -9,7 +9,7 @@ import pytest
 from bench.bench_poses import LAYOUTS, colmap_config, growth
 from recon.poses import ColmapConfig, ReconstructionError
 from recon.poses.colmap import (LARGE_IMAGE_SCALE, resolve_board_corners, resolve_extractor,
-                                resolve_final_ba_iterations, resolve_final_ba_threads, resolve_first_octave,
+                                resolve_final_ba_iterations, resolve_first_octave,
                                 resolve_image_scale, resolve_mapper, resolve_matcher)
 from recon.poses.colmap_process import estimate_colmap_stoppable
 
@@ -58,11 +58,9 @@ def test_auto_resolves_by_view_count():
     assert resolve_board_corners(ColmapConfig(known_intrinsics=False, board_corners=True), True, "incremental")
 
 
-def test_auto_image_scale_and_final_threads_by_view_count():
+def test_auto_image_scale_by_view_count():
     """``image_scale`` None: full scale up to 499 views, 0.75 from 500 on (1000 views: 615.9 s at
-    0.0286 deg against 711.6 s at 0.0249 at full scale, session 34); a given scale is kept. The
-    final bundle adjustment runs on the global mapper's threads after it, on one thread after the
-    incremental mapper."""
+    0.0286 deg against 711.6 s at 0.0249 at full scale, session 34); a given scale is kept."""
     cfg = ColmapConfig()
     assert cfg.image_scale is None and LARGE_IMAGE_SCALE == 0.75
     assert [resolve_image_scale(cfg, v) for v in (56, 224, 499, 500, 1000)] == [1.0, 1.0, 1.0, 0.75, 0.75]
@@ -73,8 +71,6 @@ def test_auto_image_scale_and_final_threads_by_view_count():
         ColmapConfig(large_min_images=1)
     with pytest.raises(ValueError, match="image_scale"):
         ColmapConfig(image_scale=0.0)
-    assert [resolve_final_ba_threads(cfg, resolve_mapper(cfg, v)) for v in LAYOUTS] == [1, 2, 2]
-    assert resolve_final_ba_threads(ColmapConfig(global_threads=1), "global") == 1
 
 
 def test_the_auto_scale_reaches_the_images_and_comes_back_in_the_intrinsics(small_capture, tmp_path):
