@@ -198,7 +198,7 @@ MODIFIERS = {"o": ("first_octave", int), "t": ("global_tracks_per_view", int), "
              "noretri": ("global_retriangulate", False), "cvsift": ("extractor", "opencv"),
              "colmapsift": ("extractor", "colmap"), "link": ("link_window", int), "w": ("sequential_overlap", int),
              "nocorners": ("board_corners", False), "feat": ("max_features", int),
-             "scale": ("image_scale", float)}
+             "scale": ("image_scale", float), "bar": ("global_ba_rounds", int)}
 
 
 def _metrics_file(poses: Path) -> dict:
@@ -214,7 +214,8 @@ def colmap_config(name: str):
     ``consecutive`` capture-order steps 1..overlap, ``noretri`` no retriangulation, ``cvsift`` /
     ``colmapsift`` OpenCV's or COLMAP's SIFT, ``linkN`` the link window, ``wN`` the window,
     ``nocorners`` without the board's corners as tracks, ``featN`` N SIFT features per image,
-    ``scaleS`` images resized by S before extraction; e.g.
+    ``scaleS`` images resized by S before extraction, ``barN`` N rounds of the global mapper's
+    bundle adjustment; e.g.
     ``capture_order+global+o0`` or ``auto+nocrop+consecutive`` -> ColmapConfig."""
     from recon.poses import ColmapConfig
 
