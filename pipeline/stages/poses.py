@@ -32,7 +32,10 @@ options, the matcher and mapper that ran, pairs matched and {extract,match,map,r
 first_octave (SIFT's, as resolved; COLMAP's SIFT only), extractor (colmap / opencv), board_corners
 (whether the board's corners were added as tracks, ColmapConfig.board_corners; then corner_tracks,
 corner_observations, corner_views added, corner_detect_views, corner_detect_s_per_view and
-corners_time_s / corners_cpu_time_s, outside map's), crop_box
+corners_time_s / corners_cpu_time_s, outside map's: the detection runs beside the mapper, so
+corners_time_s is what the stage waited after it, corners_wait_time_s, plus the tracks' building,
+corners_tracks_time_s; corners_detect_time_s is the detection's own span), image_scale (as
+resolved: ``auto`` is 0.75 from 500 views on), crop_box
 (the input pixels SIFT saw, ``[x0, y0, x1, y1]``, or null for the whole frame), the
 calibration (known / self / charuco), camera_model, camera_model_note (terms the views cannot
 constrain), lens_steps (each model's residuals), observed_radius_rel (how far from the centre

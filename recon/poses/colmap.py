@@ -165,6 +165,21 @@ class ColmapConfig:
       at 0.0391; ``max_features`` 1024 163 s at 0.0325, 1536 185 s at 0.0405 (the cap binds below
       OpenCV's ~1,800 a view; which features survive it moves the ring pitch). Defaults kept.
 
+    * The stage's own wall time (session 35; ``bench_poses --views N --add``, quiet runs): the
+      board's corners detected beside the mapper instead of after it (:class:`recon.poses.board_tracks.CornerJob`,
+      threads at nice 19 in the mapper's idle share; the same cameras bit for bit at 224 views with
+      one thread), the capture read and the working copies written on all cores, the copies
+      without PNG row filters, and ``image_scale`` 0.75 from 500 views on
+      (:func:`resolve_image_scale`): 1000 views 1000/1000 at 0.0286 deg in 531.8 s wall (extract
+      / match / map / corners 109 / 132 / 268 / 4.7 s; load 0.05-1.8, up to 5.5 in 5-s samples);
+      earlier quiet runs on the way 602.6 s (final iterations on 2 threads) and 618.1 s (PNG row
+      filters; its mapper 261 s against 188 s on the same inputs: quiet runs vary by tens of
+      seconds); session 34 at scale 0.75: 615.9 s, 35 s of it the corners after the mapper, now
+      3-5 s. 224 views 136.5-175.9 s wall, 0.0166 deg.
+      Not kept: the final bundle adjustment on 2 threads (61.8 s against 49.3 on one at 1000 views),
+      one round of the global mapper's bundle adjustment (``global_ba_rounds`` 1: ~5% of the
+      mapper at 224 views), COLMAP's brute-force CPU matcher (>7x slower at 224 views).
+
     Below 150 views exhaustive matching and the incremental mapper stay the most accurate at a
     cost that is still small; above, pairs must grow linearly and only the global mapper
     finishes. ``bench/results/bench_poses_scale.json`` holds the stage's own figures at 56 / 224
