@@ -247,23 +247,37 @@ def _embree(scene, ps, ours_rays_per_s: float, ours_paths_per_s: float, cam) -> 
             "note": "bare Embree: closest-hit queries only (no shading, no shadow rays), same BVH and threads"}
 
 
+def _parse(argv: list[str]):
+    """The benchmark's options; an unknown one (or ``--help``) stops before any work starts."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m bench.bench_mitsuba_equal_time", allow_abbrev=False,
+                                description="Equal wall time against Mitsuba 3 on the Cornell box (128 x 128).")
+    p.add_argument("--quick", action="store_true", help="a shorter reference and the 5 s budget only")
+    p.add_argument("--repeats", type=int, default=REPEATS, help=f"interleaved rounds per budget (default {REPEATS})")
+    p.add_argument("--budgets", type=lambda t: [float(x) for x in t.split(",")], default=None,
+                   help="whole-process budgets in seconds, comma-separated (default 5,30 times the machine's inflation)")
+    p.add_argument("--reference", type=Path, default=None, help="a saved reference .npz (arrays mean, var)")
+    p.add_argument("--skip-variants", action="store_true", help="no spp-for-spp study")
+    return p.parse_args(argv)
+
+
 def main(argv: list[str] | None = None) -> None:
-    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
-    quick = "--quick" in argv
-    repeats = int(argv[argv.index("--repeats") + 1]) if "--repeats" in argv else REPEATS
+    args = _parse(list(argv or []))  # `make bench` (bench.run_all) calls main() with no arguments
+    quick, repeats = args.quick, args.repeats
     ref_spp = 1024 if quick else REF_SPP
     help_s = sorted(_timed_help() for _ in range(3))[1]
     inflation = max(1.0, help_s / HELP_QUIET_S)
     budgets = [b * inflation for b in (BUDGETS_S[:1] if quick else BUDGETS_S)]
-    if "--budgets" in argv:
-        budgets = [float(x) for x in argv[argv.index("--budgets") + 1].split(",")]
+    if args.budgets:
+        budgets = args.budgets
     scene, cam = _cornell()
     load0 = os.getloadavg()
-    if "--reference" in argv:  # a saved reference (the same REF_SPP, REF_DEPTH, seed and sampler)
+    if args.reference is not None:  # a saved reference (the same REF_SPP, REF_DEPTH, seed and sampler)
         from render.integrators import prepare
 
         ps, ref_s = prepare(scene), None
-        with np.load(argv[argv.index("--reference") + 1]) as z:
+        with np.load(args.reference) as z:
             ref_mean, ref_var = z["mean"].astype(np.float64), z["var"].astype(np.float64)
     else:
         ps, ref, ref_s = _reference(scene, cam, ref_spp)
@@ -275,7 +289,7 @@ def main(argv: list[str] | None = None) -> None:
                              "seconds": None if ref_s is None else round(ref_s, 2), "reused": ref_s is None,
                              "noise_mse": noise, "image_mean": ref_mean.reshape(-1, 3).mean(0).tolist(),
                              "image_mean_se": (np.sqrt(ref_var.reshape(-1, 3).sum(0)) / (SIZE * SIZE)).tolist()}}
-    if "--skip-variants" not in argv:
+    if not args.skip_variants:
         figures["variants_ours"] = _variants(scene, cam, ps, ref_mean, noise, SPP_VARIANTS)
     from bench.bench_media_mitsuba import _mitsuba
 
@@ -300,7 +314,7 @@ def main(argv: list[str] | None = None) -> None:
         if mi is not None:
             json_unlimited = _mitsuba_scene_json(scene, cam, tmp, None)
             json_depth8 = _mitsuba_scene_json(scene, cam, tmp, 8)
-        if mi is not None and "--skip-variants" not in argv:
+        if mi is not None and not args.skip_variants:
             mits = {}
             for sampler in ("independent", "multijitter"):
                 img, wall = _run_mitsuba(json_unlimited, sampler, SPP_VARIANTS, 7, tmp)

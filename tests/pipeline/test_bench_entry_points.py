@@ -4,6 +4,8 @@ TypeError (three did) and only a full `make bench` would show it."""
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -80,3 +82,15 @@ def test_run_all_keeps_going_past_a_benchmark_that_exits(monkeypatch, capsys):
     assert seen == {"bench.bench_a": ["bench.bench_a"], "bench.bench_b": ["bench.bench_b"]}
     assert "bench_a failed: SystemExit" in capsys.readouterr().err
     assert sys.argv == ["run_all", "bench_a", "bench_b"]
+
+
+def test_equal_time_bench_refuses_unknown_options_before_any_work():
+    """`--help` once started the whole 20-minute run (the options were read by hand and anything
+    else ignored): argparse now answers --help and refuses a misspelt option with exit 2."""
+    root = BENCH.parent
+    run = lambda *a: subprocess.run([sys.executable, "-m", "bench.bench_mitsuba_equal_time", *a], cwd=root,
+                                    capture_output=True, text=True, timeout=120)
+    shown = run("--help")
+    assert shown.returncode == 0 and "--skip-variants" in shown.stdout
+    refused = run("--skip-variant")
+    assert refused.returncode == 2 and "unrecognized arguments: --skip-variant" in refused.stderr
