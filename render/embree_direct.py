@@ -143,6 +143,23 @@ if AVAILABLE:
         b = ((align - (raw.ctypes.data & (align - 1))) & (align - 1)) >> 2
         return b, raw.ctypes.data + 4 * b
 
+    @njit(inline="always", cache=True, nogil=True)
+    def _fill_packet(f, raw, b, valid, vb, o32, d32, t32, s, m):
+        """Rays s .. s + m - 1 into the RTCRay8 fields 0-11 at f/raw[b:] (tfar from t32, or
+        infinity when t32 is empty), lanes m .. PACKET - 1 marked invalid."""
+        W = PACKET
+        for k in range(W):
+            if k < m:
+                i = s + k
+                valid[vb + k] = -1
+                f[b + k], f[b + W + k], f[b + 2 * W + k], f[b + 3 * W + k] = o32[i, 0], o32[i, 1], o32[i, 2], 0.0
+                f[b + 4 * W + k], f[b + 5 * W + k], f[b + 6 * W + k] = d32[i, 0], d32[i, 1], d32[i, 2]
+                f[b + 7 * W + k] = 0.0
+                f[b + 8 * W + k] = t32[i] if len(t32) else np.inf
+                raw[b + 9 * W + k], raw[b + 10 * W + k], raw[b + 11 * W + k] = _INVALID, 0, 0  # mask, id, flags
+            else:
+                valid[vb + k] = 0
+
     @njit(cache=True, nogil=True)
     def intersect_many(scene, o32, d32, prim, tfar, u, v):
         """First hits of rays o32, d32 (N, 3) float32 (t in (0, inf)) into prim (N,) int32
@@ -159,21 +176,13 @@ if AVAILABLE:
         valid = np.zeros(W + 8, np.int32)
         vb, vptr = _aligned(valid, 32)
         n = len(o32)
+        no_limit = np.empty(0, np.float32)
         for s in range(0, n, W):
             m = min(W, n - s)
-            for k in range(W):
-                if k < m:
-                    i = s + k
-                    valid[vb + k] = -1
-                    f[b + k], f[b + W + k], f[b + 2 * W + k], f[b + 3 * W + k] = o32[i, 0], o32[i, 1], o32[i, 2], 0.0
-                    f[b + 4 * W + k], f[b + 5 * W + k], f[b + 6 * W + k] = d32[i, 0], d32[i, 1], d32[i, 2]
-                    f[b + 7 * W + k] = 0.0
-                    f[b + 8 * W + k] = np.inf
-                    raw[b + 9 * W + k], raw[b + 10 * W + k], raw[b + 11 * W + k] = _INVALID, 0, 0  # mask, id, flags
-                    raw[b + 17 * W + k], raw[b + 18 * W + k] = _INVALID, _INVALID
-                    raw[b + 19 * W + k], raw[b + 20 * W + k] = _INVALID, _INVALID
-                else:
-                    valid[vb + k] = 0
+            _fill_packet(f, raw, b, valid, vb, o32, d32, no_limit, s, m)
+            for k in range(m):
+                raw[b + 17 * W + k], raw[b + 18 * W + k] = _INVALID, _INVALID  # primID, geomID
+                raw[b + 19 * W + k], raw[b + 20 * W + k] = _INVALID, _INVALID  # instID, instPrimID
             _rtc_intersect8(vptr, scene, ptr, 0)
             for k in range(m):
                 i = s + k
@@ -199,17 +208,7 @@ if AVAILABLE:
         n = len(o32)
         for s in range(0, n, W):
             m = min(W, n - s)
-            for k in range(W):
-                if k < m:
-                    i = s + k
-                    valid[vb + k] = -1
-                    f[b + k], f[b + W + k], f[b + 2 * W + k], f[b + 3 * W + k] = o32[i, 0], o32[i, 1], o32[i, 2], 0.0
-                    f[b + 4 * W + k], f[b + 5 * W + k], f[b + 6 * W + k] = d32[i, 0], d32[i, 1], d32[i, 2]
-                    f[b + 7 * W + k] = 0.0
-                    f[b + 8 * W + k] = t32[i]
-                    raw[b + 9 * W + k], raw[b + 10 * W + k], raw[b + 11 * W + k] = _INVALID, 0, 0
-                else:
-                    valid[vb + k] = 0
+            _fill_packet(f, raw, b, valid, vb, o32, d32, t32, s, m)
             _rtc_occluded8(vptr, scene, ptr, 0)
             for k in range(m):
                 occ[s + k] = 0 if f[b + 8 * W + k] == -np.inf else -1
