@@ -294,6 +294,68 @@ def _sample(sampler, key, dim):
     return _uniform(key, dim)
 
 
+@njit(inline="always", **_JIT)
+def _group_index(khi, rkey, dim0):
+    """A Sobol group's hash and shuffled index from the key's high half khi = key & _HI32 and
+    its reversed index rkey = _reverse32(key & _MASK32) (shared by all of a path's groups):
+    (h_index, j) as in :func:`_sobol2`."""
+    h_index = _mix64(khi + np.uint64(dim0 + 1) * _GOLDEN)
+    return h_index, _reverse32(_laine_karras(rkey, h_index) ^ _laine_karras(_U0, h_index))
+
+
+@njit(inline="always", **_JIT)
+def _sobol2_shared(khi, rkey, dim0):
+    """_sobol2(key, dim0) from the shared halves of :func:`_group_index`."""
+    h_index, j = _group_index(khi, rkey, dim0)
+    h0 = _mix64(h_index ^ _M1)
+    h1 = _mix64(h_index ^ (np.uint64(2) * _M1))
+    return np.float64(_scrambled_dim0(j, h0)) * _INV_2_32, np.float64(_scrambled_dim1(j, h1)) * _INV_2_32
+
+
+@njit(inline="always", **_JIT)
+def _sobol1_shared(khi, rkey, dim):
+    """_sobol(key, dim) of a 1-D group (component 0) from the shared halves of :func:`_group_index`."""
+    h_index, j = _group_index(khi, rkey, dim)
+    return np.float64(_scrambled_dim0(j, _mix64(h_index ^ _M1))) * _INV_2_32
+
+
+_BLOCK = 128  # paths whose bounce numbers one pass of _bounce_numbers draws (a few KiB: stays in L1)
+
+
+@njit(**_JIT)
+def _bounce_numbers(sampler, keys, i0, i1, base, roulette, U):
+    """The random numbers a bounce reads, for paths i0 .. i1 - 1 (U[:, i - i0]): [0] light pick
+    (dimension base; the independent sampler only), [1], [2] light point (base + 1, base + 2),
+    [3], [4] BSDF direction (base + 4, base + 5), [5] roulette (base + 6, when ``roulette``).
+    The Fresnel lobe (base + 3) is drawn where it is read (dielectric hits only). A branch-free
+    pass over a block of paths, so LLVM vectorizes the uint64 hashing; the values are
+    _sample / _sample2's, bit for bit."""
+    n = i1 - i0
+    if sampler == SAMPLER_SOBOL:
+        if roulette:
+            for k in range(n):
+                key = keys[i0 + k]
+                khi, rkey = key & _HI32, _reverse32(key & _MASK32)
+                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, base + 1)
+                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, base + 4)
+                U[5, k] = _sobol1_shared(khi, rkey, base + 6)
+        else:
+            for k in range(n):
+                key = keys[i0 + k]
+                khi, rkey = key & _HI32, _reverse32(key & _MASK32)
+                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, base + 1)
+                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, base + 4)
+    else:
+        for k in range(n):
+            key = keys[i0 + k]
+            U[0, k] = _uniform(key, base)
+            U[1, k] = _uniform(key, base + 1)
+            U[2, k] = _uniform(key, base + 2)
+            U[3, k] = _uniform(key, base + 4)
+            U[4, k] = _uniform(key, base + 5)
+            U[5, k] = _uniform(key, base + 6)
+
+
 @njit(**_JIT)
 def uniform_dims(keys, dim0, count, sampler=SAMPLER_INDEPENDENT):
     """(N, count) uniforms of dimensions dim0.. (equals render.sampling.uniform_block, or
@@ -330,26 +392,49 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
     """
     rot, origin = cam.rotation, cam.origin
     nrep = np.uint64(replicates)
-    for i in range(stop - start):
-        flat = start + i
-        p = flat % npix
-        s = sample0 + flat // npix
+    n = stop - start
+    # pixel (and its column, row), sample, and the sample's replicate and index within it,
+    # advanced by counters: no integer division per path
+    p = start % npix
+    s = sample0 + start // npix
+    rep, q = np.uint64(s) % nrep, np.uint64(s) // nrep
+    px, py = p % width, p // width
+    for i in range(n):
         k = _mix64(np.uint64(p) * _GOLDEN ^ seed_mix)
         if sampler == SAMPLER_SOBOL:  # hash of (seed, pixel, replicate) over the Sobol index
-            us = np.uint64(s)
-            key = (_mix64(k ^ ((us % nrep) * _M2 + _GOLDEN)) & _HI32) | ((us // nrep) & _MASK32)
+            key = (_mix64(k ^ (rep * _M2 + _GOLDEN)) & _HI32) | (q & _MASK32)
         else:
             key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
         keys[i] = key
         pix[i] = p
-        ux, uy = _sample2(sampler, key, 0)
-        jx = ux + (p % width)
-        jy = uy + (p // width)
-        jit[i, 0] = jx
-        jit[i, 1] = jy
-        if pinhole:
-            x = (jx - cam.cx) / cam.fx
-            y = (jy - cam.cy) / cam.fy
+        jit[i, 0] = px
+        jit[i, 1] = py
+        p += 1
+        px += 1
+        if px == width:
+            px = 0
+            py += 1
+        if p == npix:
+            p, px, py, s = 0, 0, 0, s + 1
+            rep += _U1
+            if rep == nrep:
+                rep = _U0
+                q += _U1
+    # the pixel jitter (dimensions 0, 1) in a pass of its own: branch-free, vectorized hashing
+    if sampler == SAMPLER_SOBOL:
+        for i in range(n):
+            ux, uy = _sobol2(keys[i], 0)
+            jit[i, 0] = ux + jit[i, 0]
+            jit[i, 1] = uy + jit[i, 1]
+    else:
+        for i in range(n):
+            key = keys[i]
+            jit[i, 0] = _uniform(key, 0) + jit[i, 0]
+            jit[i, 1] = _uniform(key, 1) + jit[i, 1]
+    if pinhole:
+        for i in range(n):
+            x = (jit[i, 0] - cam.cx) / cam.fx
+            y = (jit[i, 1] - cam.cy) / cam.fy
             nrm = math.sqrt(x * x + y * y + 1.0)
             x, y, z = x / nrm, y / nrm, 1.0 / nrm
             for c in range(3):
@@ -587,11 +672,12 @@ def _queue_shadow_to(o32, d32, t32, n, px, py, pz, ngx, ngy, ngz, eps, wx, wy, w
 
 
 @njit(inline="always", **_JIT)
-def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
+def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, us,
                 p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq, extent):
     """Next-event estimation at a Lambertian vertex p (shading normal n, geometric ng; 3-tuples)
-    of albedo a and throughput b (3-tuples): one light sample (pick, point: dimensions base ..
-    base + 2; the Sobol sampler picks with base + 1 and reuses it, rescaled, for the point),
+    of albedo a and throughput b (3-tuples): one light sample (us: the numbers of the pick and
+    the point, dimensions base .. base + 2 of :func:`_bounce_numbers`; the Sobol sampler picks
+    with base + 1 and reuses it, rescaled, for the point),
     queued as a shadow ray (:func:`_queue_shadow_to`) with its unoccluded contribution. Returns
     the new queue length. (Points and colours travel as tuples: CPython passes calls of more
     than 30 arguments as *args, which numba cannot inline.)"""
@@ -600,19 +686,19 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
     ngx, ngy, ngz = ng
     b0, b1, b2 = b
     a0, a1, a2 = a
+    u0, ua, u2 = us
     if cfg.sampler == SAMPLER_SOBOL:
         # pick and point from one 2-D group (base + 1, base + 2): the pick's number, rescaled
         # within the picked light's CDF interval, is uniform again and becomes the point's first
         # coordinate, so each light's points keep the pair's stratification (pbrt's remapped u)
-        ua, u2 = _sample2(cfg.sampler, key, base + 1)
         k = _pick(cdf, ua)
         lo = cdf[k - 1] if k > 0 else 0.0
         width = cdf[k] - lo
         u1 = min((ua * cdf[len(cdf) - 1] - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
         u1 = max(u1, 0.0)
     else:
-        k = _pick(cdf, _sample(cfg.sampler, key, base))
-        u1, u2 = _sample2(cfg.sampler, key, base + 1)
+        k = _pick(cdf, u0)
+        u1 = ua
     if k < n_area:
         ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
         ldelta = False
@@ -643,10 +729,9 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
 
 
 @njit(inline="always", **_JIT)
-def _sample_cosine(sampler, key, base, nx, ny, nz):
-    """Cosine-weighted direction about n (dimensions base + 4, base + 5; the polar warp of
-    render.sampling.cosine_hemisphere): (wi (3), pdf, its cosine)."""
-    u4, u5 = _sample2(sampler, key, base + 4)
+def _sample_cosine(u4, u5, nx, ny, nz):
+    """Cosine-weighted direction about n from (u4, u5) (dimensions base + 4, base + 5; the polar
+    warp of render.sampling.cosine_hemisphere): (wi (3), pdf, its cosine)."""
     r = math.sqrt(u4)
     phi = (2.0 * math.pi) * u5
     c = math.cos(phi)  # sin from cos (one libm call): |error| < 2e-8, still unit length
@@ -734,7 +819,11 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
     nn = 0
     nq = 0
     nl = 0
+    U = np.empty((6, _BLOCK))
     for i in range(len(prim)):
+        k = i % _BLOCK
+        if k == 0:  # the next block's random numbers, in one vectorized pass
+            _bounce_numbers(cfg.sampler, keys, i, min(i + _BLOCK, len(prim)), base, roulette, U)
         slot = idx[i]
         fl = flags[i]
         prev_delta = (fl & F_DELTA) != 0
@@ -770,12 +859,13 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         if kind == LAMBERT:
             a0, a1, a2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             if cfg.nee_any and has_lights:
-                nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, key, base,
+                nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor,
+                                 (U[0, k], U[1, k], U[2, k]),
                                  (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
                                  q_o32, q_d32, q_t32, q_idx, q_val, nq, extent)
             if not cfg.continue_diffuse:
                 continue
-            wx, wy, wz, spdf, cos_s = _sample_cosine(cfg.sampler, key, base, nx, ny, nz)
+            wx, wy, wz, spdf, cos_s = _sample_cosine(U[3, k], U[4, k], nx, ny, nz)
             w0, w1, w2 = a0, a1, a2
             valid = cos_s > 0.0 and cos_o != 0.0
             delta = False
@@ -797,7 +887,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         b0, b1, b2 = b0 * w0, b1 * w1, b2 * w2
         if roulette:
             survive = min(1.0, max(max(b0, b1), b2))
-            if not _sample(cfg.sampler, key, base + 6) < survive:
+            if not U[5, k] < survive:
                 continue
             b0, b1, b2 = b0 / survive, b1 / survive, b2 / survive
         if not max(max(b0, b1), b2) > 0.0:
