@@ -27,7 +27,7 @@ import numpy as np
 
 from bench.bench_hard_paths import (SMALL_SOURCE, _interp_loglog, _rmse, camera, caustic_region, caustic_scene,
                                     combined_reference)
-from bench.common import write_result
+from bench.common import parse_flags, write_result
 from render.integrators import RenderSettings, prepare, render
 
 
@@ -96,7 +96,8 @@ def caustic_equal_time(quick: bool) -> dict:
     return out
 
 
-def main(quick: bool = False) -> None:
+def main(argv: list[str] | None = None) -> None:
+    quick = parse_flags('bench_bdpt_compiled', 'The compiled bdpt against path on the caustic scenes at equal time.', argv, {"--quick": "a smoke run: smaller sizes and sample counts"}).quick
     load0 = os.getloadavg()
     figs = {"samples_per_s": samples_per_s(quick), "caustic_equal_time": caustic_equal_time(quick)}
     figs["load_average"] = {"start": load0, "end": os.getloadavg()}
@@ -104,4 +105,4 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(sys.argv[1:])

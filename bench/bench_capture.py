@@ -19,12 +19,13 @@ Run: ``.venv/bin/python -m bench.bench_capture``; writes bench/results/capture.j
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import numpy as np
 import trimesh
 
-from bench.common import median_time, write_result
+from bench.common import median_time, parse_flags, write_result
 from render.camera import Camera, Intrinsics
 from render.poses import look_at
 from render.scene import Lambertian, Scene, SceneObject, SpotLight
@@ -177,7 +178,8 @@ def pipeline_vs_bare(repeats: int = 3) -> dict:
             "seconds_per_repeat": {k: [round(x, 3) for x in v] for k, v in times.items()}}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parse_flags("bench_capture", "The capture stage against bare pyrender.", argv, {})
     stage = pipeline_vs_bare()
     scene, cams = capture_scene(), capture_cameras()
     gl_poses = [c.cam_to_world @ np.diag([1.0, -1, -1, 1]) for c in cams]  # render.poses.opencv_to_opengl
@@ -242,4 +244,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

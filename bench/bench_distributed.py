@@ -38,11 +38,12 @@ from __future__ import annotations
 import os
 import pickle
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-from bench.common import write_result
+from bench.common import parse_flags, write_result
 
 SIZE = (640, 480)
 SPP = 16
@@ -244,7 +245,8 @@ def _projection(k: dict, c_sched: float, bandwidth: float = 1.0e9) -> dict:
             "scheduler_bound_workers": round(tb / (2 * c_sched)), "rows": rows}
 
 
-def main() -> dict:
+def main(argv: list[str] | None = None) -> dict:
+    parse_flags("bench_distributed", "Reference renders on a local Dask cluster against in process.", argv, {})
     from distributed import Client
 
     from pipeline.distributed import ClusterConfig, local_cluster, machine_cores
@@ -313,4 +315,4 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

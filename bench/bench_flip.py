@@ -37,7 +37,8 @@ def _pair(artifacts: Path, model: str, view: str) -> tuple[np.ndarray, np.ndarra
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_flip", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("--artifacts", type=Path, default=Path("artifacts/turntable"))
     ap.add_argument("--model", default="slab")
     ap.add_argument("--view", default="test_000")

@@ -47,7 +47,7 @@ import time
 import numpy as np
 import trimesh
 
-from bench.common import RESULTS_DIR, median_time, write_result
+from bench.common import RESULTS_DIR, median_time, parse_flags, write_result
 from render.camera import Camera, Intrinsics
 from render.integrators import RenderSettings, prepare, render
 from render.poses import look_at
@@ -359,7 +359,23 @@ def _sppm_photons_per_second(cam: Camera, spp: int, reps: int) -> dict:
     return out
 
 
-def main(quick: bool = False) -> None:
+def main(argv: list[str] | None = None) -> None:
+    args = parse_flags("bench_hard_paths", "Hard light paths (caustics, fog) at equal time, integrator by integrator.", argv,
+                       {"--quick": "a smoke run: smaller sizes and sample counts",
+                        "--samples-per-s": "only the samples/s section (bench/results/hard_paths_samples_per_s.json)",
+                        "--sweep": "only the source-size sweep, auto's crossover (hard_paths_source_sweep.json)"})
+    quick = args.quick
+    if args.samples_per_s:
+        write_result("hard_paths_samples_per_s", samples_per_second(camera(24 if quick else 48), quick))
+        return
+    if args.sweep:
+        load_before = os.getloadavg()
+        t0 = time.perf_counter()
+        sweep = _source_sweep(camera(24 if quick else 48), quick)
+        write_result("hard_paths_source_sweep", {"load_average_before": load_before, "load_average_after": os.getloadavg(),
+                                                 "total_s": round(time.perf_counter() - t0, 1),
+                                                 "crossover_sr": crossover_solid_angle(sweep), "sweep": sweep})
+        return
     size = 24 if quick else 48
     cam = camera(size)
     rows, figs = [], {}
@@ -424,15 +440,4 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    if "--samples-per-s" in sys.argv:  # this section alone: bench/results/hard_paths_samples_per_s.json
-        write_result("hard_paths_samples_per_s", samples_per_second(camera(24 if "--quick" in sys.argv else 48),
-                                                                    "--quick" in sys.argv))
-    elif "--sweep" in sys.argv:  # the source-size sweep alone (auto's crossover): hard_paths_source_sweep.json
-        load_before = os.getloadavg()
-        t0 = time.perf_counter()
-        sweep = _source_sweep(camera(24 if "--quick" in sys.argv else 48), "--quick" in sys.argv)
-        write_result("hard_paths_source_sweep", {"load_average_before": load_before, "load_average_after": os.getloadavg(),
-                                                 "total_s": round(time.perf_counter() - t0, 1),
-                                                 "crossover_sr": crossover_solid_angle(sweep), "sweep": sweep})
-    else:
-        main(quick="--quick" in sys.argv)
+    main(sys.argv[1:])

@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from bench.common import write_result
+from bench.common import parse_flags, write_result
 from render.camera import Camera, Intrinsics
 from render.integrators import RenderSettings, prepare
 from render.poses import look_at
@@ -254,7 +254,8 @@ def closed_form_ray(mi, cf, tmp: Path, quick: bool) -> dict:
     return out
 
 
-def main(quick: bool = False) -> None:
+def main(argv: list[str] | None = None) -> None:
+    quick = parse_flags('bench_media_mitsuba', 'Participating media against Mitsuba 3.', argv, {"--quick": "a smoke run: smaller sizes and sample counts"}).quick
     mi, variant = _mitsuba()
     if mi is None:
         print("bench_media_mitsuba: skipped (mitsuba is not installed: pip install -e '.[bench]')")
@@ -294,4 +295,4 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(sys.argv[1:])

@@ -32,15 +32,17 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   scene (camera rays, then cosine-distributed bounce rays from the first hits) against our
   rays/s and paths/s at 256 spp in the same process.
 
-Ours runs under both Sobol samplers at equal time: ``sobol`` (R interleaved independent replicates,
-an unbiased variance image) and ``sobol-blocks`` (one sequence per pixel, the default of path and
-direct since issue 16's session 30; its variance image is render.film.blocks_variance's model),
-each ratio against Mitsuba's samplers reported.
+Ours runs at equal time under ``sobol-blocks`` (one sequence per pixel, the default of path and
+direct since issue 16's session 30; its variance image is render.film.blocks_variance's model) at
+max_depth 8 (the CLI's default: 0.3% low on this scene, the cut-off's bias) and 64 (unbiased
+here, as Mitsuba's unlimited depth is); with ``--with-replicates`` also under ``sobol`` (R
+interleaved independent replicates: an unbiased variance image, about 2x the RMSE). Each ratio
+against Mitsuba's two samplers is reported.
 
-Run: ``.venv/bin/python -m bench.bench_mitsuba_equal_time`` (``--quick``: a shorter reference and
-a 5 s budget only; ``--reference FILE.npz``: reuse a saved reference (arrays mean, var; the run
-saves its own as bench/results/mitsuba_equal_time_reference.npz); ``--skip-variants``: no
-spp-for-spp study).
+Run: ``.venv/bin/python -m bench.bench_mitsuba_equal_time`` (``--quick``: a 1024-spp reference and
+a 5 s budget only; ``--ref-spp N``: the reference's samples; ``--reference FILE.npz``: reuse a
+saved reference (arrays mean, var, spp; the run saves its own as
+bench/results/mitsuba_equal_time_reference.npz); ``--skip-variants``: no spp-for-spp study).
 """
 from __future__ import annotations
 
@@ -59,7 +61,9 @@ from bench.common import write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 128
-REF_SPP = 2048
+#: the reference's samples: at 2048 its noise (MSE 1.8e-6) exceeded the MSE judged at 30 s, so every
+#: 30 s ratio leaned on subtracting it; at 16384 it is ~8x smaller (about 3 minutes here)
+REF_SPP = 16384
 REF_DEPTH = 64
 SPP_VARIANTS = 64
 BUDGETS_S = (5.0, 30.0)
@@ -257,15 +261,22 @@ def _parse(argv: list[str]):
     p.add_argument("--repeats", type=int, default=REPEATS, help=f"interleaved rounds per budget (default {REPEATS})")
     p.add_argument("--budgets", type=lambda t: [float(x) for x in t.split(",")], default=None,
                    help="whole-process budgets in seconds, comma-separated (default 5,30 times the machine's inflation)")
-    p.add_argument("--reference", type=Path, default=None, help="a saved reference .npz (arrays mean, var)")
+    p.add_argument("--reference", type=Path, default=None, help="a saved reference .npz (arrays mean, var, spp)")
+    p.add_argument("--ref-spp", type=int, default=None,
+                   help=f"samples of the reference when it is rendered (default {REF_SPP}; --quick 1024)")
+    p.add_argument("--with-replicates", action="store_true",
+                   help="also ours under the `sobol` sampler (R independent replicates) at equal time")
     p.add_argument("--skip-variants", action="store_true", help="no spp-for-spp study")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.ref_spp is not None and args.ref_spp < 1:
+        p.error(f"--ref-spp must be at least 1, got {args.ref_spp}")
+    return args
 
 
 def main(argv: list[str] | None = None) -> None:
     args = _parse(list(argv or []))  # `make bench` (bench.run_all) calls main() with no arguments
     quick, repeats = args.quick, args.repeats
-    ref_spp = 1024 if quick else REF_SPP
+    ref_spp = args.ref_spp if args.ref_spp is not None else (1024 if quick else REF_SPP)
     help_s = sorted(_timed_help() for _ in range(3))[1]
     inflation = max(1.0, help_s / HELP_QUIET_S)
     budgets = [b * inflation for b in (BUDGETS_S[:1] if quick else BUDGETS_S)]
@@ -279,10 +290,12 @@ def main(argv: list[str] | None = None) -> None:
         ps, ref_s = prepare(scene), None
         with np.load(args.reference) as z:
             ref_mean, ref_var = z["mean"].astype(np.float64), z["var"].astype(np.float64)
+            ref_spp = int(z["spp"]) if "spp" in z.files else None  # files before session 36 held no spp
     else:
         ps, ref, ref_s = _reference(scene, cam, ref_spp)
         ref_mean, ref_var = ref.mean.astype(np.float64), ref.variance.astype(np.float64)
-        np.savez(ROOT / "bench" / "results" / "mitsuba_equal_time_reference.npz", mean=ref_mean, var=ref_var)
+        np.savez(ROOT / "bench" / "results" / "mitsuba_equal_time_reference.npz", mean=ref_mean, var=ref_var,
+                 spp=ref_spp)
     noise = float(ref_var.mean())
     figures = {"scene": "cornell", "size": [SIZE, SIZE],
                "reference": {"spp": ref_spp, "max_depth": REF_DEPTH, "sampler": "sobol",
@@ -330,13 +343,13 @@ def main(argv: list[str] | None = None) -> None:
                         for s in ("independent", "multijitter")}
             equal["calibration_mitsuba"] = calib_mi
         rows = []
-        contestants = ["ours", "ours_blocks", "ours_blocks_depth64"]
+        contestants = (["ours"] if args.with_replicates else []) + ["ours_blocks", "ours_blocks_depth64"]
         for budget in budgets:
             row = {"budget_s": budget, "repeats": []}
             n = _spp_for(budget, calib_ours)  # the two Sobol samplers cost the same per sample
             plan = [(name, "ours", sampler, depth, spp) for name, sampler, depth, spp in (
                 ("ours", "sobol", 8, n), ("ours_blocks", "sobol-blocks", 8, n),
-                ("ours_blocks_depth64", "sobol-blocks", 64, _spp_for(budget, calib_deep)))]
+                ("ours_blocks_depth64", "sobol-blocks", 64, _spp_for(budget, calib_deep))) if name in contestants]
             if mi is not None:
                 plan += [(f"mitsuba_{s}", "mitsuba", s, None, _spp_for(budget, calib_mi[s])) for s in ("independent", "multijitter")]
             # interleaved: every repeat runs each contestant once, in turn, under a fresh seed, so a

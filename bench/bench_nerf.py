@@ -10,10 +10,12 @@ training. Run: ``.venv/bin/python -m bench.bench_nerf`` (about 2 minutes on an i
 """
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import torch
 
-from bench.common import median_time, write_result
+from bench.common import median_time, parse_flags, write_result
 from recon.nerf.data import scene_box
 from recon.nerf.models import make_model
 from render.camera import Camera, Intrinsics
@@ -61,7 +63,8 @@ def _measure(model, o, d, n_train: int, n_render: int, repeats: int) -> dict:
             "train_samples_per_s": pts / t_train, "render_rays_per_s": n_render / t_render}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parse_flags("bench_nerf", "NeRF ray marching and training throughput.", argv, {})
     torch.set_num_threads(2)
     o, d, lo, hi = _rays(8192)
     figures = {}
@@ -87,4 +90,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -56,7 +56,8 @@ def run_stage(capture: Path, reference: Path | None, minutes: float, out: Path, 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_nerf_budget", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("--capture", type=Path, default=None,
                     help="a capture folder (default: the tests' tiny fog cube, shrunk fast model)")
     ap.add_argument("--reference", type=Path, default=None)

@@ -45,7 +45,8 @@ def _working_psnr(model, data) -> float:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_nerf_fullres", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("capture_dir", nargs="?", default="artifacts/turntable/capture",
                     help="a capture folder (default: the default scene's, as `make demo` writes it)")
     ap.add_argument("--steps", type=int, default=300)

@@ -28,7 +28,8 @@ from render.metrics import psnr, to_display
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_nerf_inference", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("capture_dir", nargs="?", default="artifacts/turntable/capture",
                     help="a capture folder (default: the default scene's, as `make demo` writes it)")
     ap.add_argument("checkpoint", nargs="?", default="artifacts/turntable/nerf/fast/checkpoint.pt",

@@ -59,7 +59,8 @@ def _child(threads: int, steps: int, rays: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_nerf_threads", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--steps", type=int, default=12, help="steps per process (the first two not timed)")
     ap.add_argument("--rays", type=int, default=256, help="rays per step (FastConfig.min_rays: the first steps' batch)")

@@ -30,7 +30,7 @@ import trimesh
 import embreex.mesh_construction as emesh
 import embreex.rtcore_scene as escene
 
-from bench.common import RESULTS_DIR, write_result
+from bench.common import RESULTS_DIR, parse_flags, write_result
 from render.camera import Camera, Intrinsics
 from render.metrics import rmse
 from render.film import RenderResult
@@ -190,7 +190,8 @@ def plot_loglog(path: Path, xs, ys, title: str, xlabel: str, ylabel: str, extra=
 
 
 def main(argv: list[str] | None = None) -> dict:
-    quick = "--quick" in (sys.argv[1:] if argv is None else argv)
+    quick = parse_flags("bench_pathtracer", "Path tracer throughput and noise on the Cornell box (256 x 256).", argv,
+                        {"--quick": "1 spp per timing instead of 4"}).quick
     cb = _cornell_module()
     scene = cb.cornell_scene()
     cam = cb.cornell_camera(256, 256)
@@ -266,4 +267,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -48,7 +48,8 @@ from bench.common import RESULTS_DIR, write_result
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.bench_poses", description=__doc__.splitlines()[0],
+                                 allow_abbrev=False)
     ap.add_argument("--capture", type=Path, default=None)
     ap.add_argument("--scales", default="0.5,1")
     ap.add_argument("--features", default="1024,4096,8192")

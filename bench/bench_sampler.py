@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import write_result
+from bench.common import parse_flags, write_result
 
 SIZE = 128
 #: volpath's figures: image size, seeds per level, the spp the per-spp cost is timed at
@@ -194,16 +194,19 @@ def volpath_main(quick: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
-    quick = "--quick" in argv
-    if "--volpath" in argv:
+    args = parse_flags("bench_sampler", "Sobol against the independent sampler (and Mitsuba's), spp for spp.", argv,
+                       {"--quick": "fewer spp levels, a shorter reference",
+                        "--volpath": "the volpath study instead (bench/results/sampler_volpath.json)",
+                        "--no-mitsuba": "ours alone"})
+    quick = args.quick
+    if args.volpath:
         volpath_main(quick)
         return
     spps = [16, 64] if quick else [16, 64, 256]
     ref_spp = 256 if quick else 2048
     scene, cam = _cornell()
     figures = {"scene": "cornell", "size": [SIZE, SIZE], "max_depth": 8, "ours": _ours(scene, cam, spps, ref_spp)}
-    if "--no-mitsuba" not in argv:
+    if not args.no_mitsuba:
         figures["mitsuba"] = _mitsuba(scene, cam, spps, ref_spp)
     write_result("sampler_quick" if quick else "sampler", figures)
 

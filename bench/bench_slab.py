@@ -46,6 +46,7 @@ from __future__ import annotations
 import json
 import os
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -89,7 +90,8 @@ def _fps_rows(slabs, cam, modes, baseline: bool) -> dict:
     return rows
 
 
-def main() -> None:
+def default_run() -> None:
+    """The default study (no options): CONFIGS built and scored."""
     from pipeline.stages.capture import run_capture
     from pipeline.stages.slab import SlabStageConfig, build_slabs
     from recon.slab import compress_slabs
@@ -377,10 +379,11 @@ def partial(capture: Path, st_per_pixel: list[float], uv_res: int, poses: Path |
                                   "reference": "the capture's held-out views", "loadavg_1_5_15": loads, "rows": rows})
 
 
-if __name__ == "__main__":
+def main(argv: list[str] | None = None) -> None:
     import argparse
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.bench_slab", description=__doc__.splitlines()[0],
+                                     allow_abbrev=False)
     parser.add_argument("--capture-resolution", type=Path, default=None, metavar="CAPTURE_DIR")
     parser.add_argument("--poses", type=Path, default=None, help="COLMAP's poses folder (adds slab-colmap rows)")
     parser.add_argument("--built", nargs="*", default=None, metavar="LABEL=DIR",
@@ -390,14 +393,18 @@ if __name__ == "__main__":
                         help="per-view partial slabs (module docstring): ablations at a fraction of the cost")
     parser.add_argument("--st-per-pixel", default="0.5,1.0", help="--partial: comma-separated st_per_pixel values")
     parser.add_argument("--uv-res", type=int, default=8, help="--partial: uv samples along a uv quad's longer side")
-    ns = parser.parse_args()
+    ns = parser.parse_args(list(argv or []))  # bench.run_all calls main() with no arguments
     if ns.partial is not None:
         partial(ns.partial.resolve(), [float(x) for x in ns.st_per_pixel.split(",")], ns.uv_res,
                 ns.poses.resolve() if ns.poses else None)
     elif ns.capture_resolution is None:
-        main()
+        default_run()
     else:
         built = None if ns.built is None else {k: Path(v) for k, v in (b.split("=", 1) for b in ns.built)}
         with tempfile.TemporaryDirectory(prefix="bench_slab_cr_") as tmp:
             capture_resolution(ns.capture_resolution.resolve(), ns.poses.resolve() if ns.poses else None, Path(tmp), built,
                                ns.merge)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

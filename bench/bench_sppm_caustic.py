@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from bench.bench_hard_paths import _interp_loglog, _rmse, camera, caustic_region, caustic_scene
-from bench.common import RESULTS_DIR, write_result
+from bench.common import RESULTS_DIR, parse_flags, write_result
 from render.integrators import RenderSettings, prepare, render
 
 #: photons per pass compared (None: the pixel count, sppm's default) and their pass lists (full runs)
@@ -54,7 +54,8 @@ def _reference(sc, cam, ps, spp: int):
     return mean, var
 
 
-def main(quick: bool = False) -> None:
+def main(argv: list[str] | None = None) -> None:
+    quick = parse_flags('bench_sppm_caustic', 'The compiled sppm on the glass caustic against path at equal time.', argv, {"--quick": "a smoke run: smaller sizes and sample counts"}).quick
     load0 = os.getloadavg()
     cam = camera(24 if quick else 48)
     sc = caustic_scene()
@@ -104,4 +105,4 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(sys.argv[1:])

@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.common import write_result
+from bench.common import parse_flags, write_result
 
 ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "pyrender", "dask", "distributed", "trimesh", "networkx", "scipy", "scipy.spatial", "scipy.ndimage",
@@ -136,8 +136,9 @@ def _imports(cmd: list[str]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = list(argv or [])  # `make bench` (bench.run_all) calls main() with no arguments
-    runs = 2 if "--quick" in argv else 7
+    args = parse_flags("bench_startup", "Start-up cost of `lumigraph reference` against `lumigraph --help`.", argv,
+                       {"--quick": "2 runs of each command instead of 7"})
+    runs = 2 if args.quick else 7
     lumigraph = [sys.executable, "-m", "pipeline"]
     with tempfile.TemporaryDirectory() as tmp:
         reference = [*lumigraph, "reference", "cornell", "--spp", "1", "--size", "32", "32", "--out",

@@ -50,3 +50,16 @@ def write_result(name: str, figures: dict) -> Path:
     out.write_text(json.dumps(payload, indent=2))
     print(json.dumps(payload, indent=2))
     return out
+
+
+def parse_flags(module: str, description: str, argv, flags: dict[str, str]):
+    """A benchmark's on/off options (``flags``: option -> help) read with argparse: ``--help``
+    answers, and an unknown or misspelt option exits 2 before any work starts (read by hand,
+    ``--help`` once started a 20-minute run). argv None or empty: every flag off, as
+    bench.run_all calls each ``main()``."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog=f"python -m bench.{module}", description=description, allow_abbrev=False)
+    for flag, text in flags.items():
+        p.add_argument(flag, action="store_true", help=text)
+    return p.parse_args(list(argv or []))

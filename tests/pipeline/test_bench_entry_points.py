@@ -4,6 +4,7 @@ TypeError (three did) and only a full `make bench` would show it."""
 from __future__ import annotations
 
 import ast
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -84,13 +85,48 @@ def test_run_all_keeps_going_past_a_benchmark_that_exits(monkeypatch, capsys):
     assert sys.argv == ["run_all", "bench_a", "bench_b"]
 
 
-def test_equal_time_bench_refuses_unknown_options_before_any_work():
-    """`--help` once started the whole 20-minute run (the options were read by hand and anything
-    else ignored): argparse now answers --help and refuses a misspelt option with exit 2."""
-    root = BENCH.parent
-    run = lambda *a: subprocess.run([sys.executable, "-m", "bench.bench_mitsuba_equal_time", *a], cwd=root,
-                                    capture_output=True, text=True, timeout=120)
-    shown = run("--help")
-    assert shown.returncode == 0 and "--skip-variants" in shown.stdout
-    refused = run("--skip-variant")
-    assert refused.returncode == 2 and "unrecognized arguments: --skip-variant" in refused.stderr
+_PROBE = r"""
+import contextlib, importlib, io, json, sys
+out = {}
+for name in sys.argv[1:]:
+    mod = importlib.import_module(f"bench.{name}")
+    out[name] = []
+    for argv in (["--help"], ["--no-such-option"]):
+        err = io.StringIO()
+        with contextlib.redirect_stdout(io.StringIO()) as shown, contextlib.redirect_stderr(err):
+            try:
+                mod.main(argv)
+                code = "returned"  # main ran its work instead of answering
+            except SystemExit as e:
+                code = e.code
+        out[name].append([code, shown.getvalue()[:300], err.getvalue()[-300:]])
+print(json.dumps(out))
+"""
+
+
+@pytest.fixture(scope="module")
+def option_answers() -> dict:
+    """Every benchmark's ``main(["--help"])`` and ``main(["--no-such-option"])``, in one process
+    (importing them all once: torch, mitsuba); a main that read its options by hand would start
+    its run here, and the timeout ends the test."""
+    names = [p.stem for p in sorted(BENCH.glob("bench_*.py"))]
+    proc = subprocess.run([sys.executable, "-c", _PROBE, *names], cwd=BENCH.parent, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("path", sorted(BENCH.glob("bench_*.py")), ids=lambda p: p.stem)
+def test_bench_answers_help_and_refuses_unknown_options_before_any_work(option_answers, path: Path):
+    """`--help` once started the 20-minute equal-time run, and six benchmarks read their options by
+    hand (anything misspelt was ignored and the default run started): each now answers --help with
+    its usage and refuses an unknown option with argparse's exit 2 before doing anything."""
+    (help_code, help_out, _), (bad_code, _, bad_err) = option_answers[path.stem]
+    assert help_code == 0 and "usage: python -m bench." + path.stem in help_out
+    assert bad_code == 2 and "unrecognized arguments: --no-such-option" in bad_err
+
+
+def test_equal_time_bench_refuses_a_reference_of_no_samples():
+    run = subprocess.run([sys.executable, "-m", "bench.bench_mitsuba_equal_time", "--ref-spp", "0"], cwd=BENCH.parent,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "--ref-spp must be at least 1, got 0" in run.stderr
