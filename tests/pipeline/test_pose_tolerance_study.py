@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pipeline.report_poses import pose_tolerance_section
-from pipeline.stages.pose_tolerance_study import perturb_cameras, random_rotations
+from pipeline.stages.pose_tolerance_study import loss_headline, perturb_cameras, random_rotations
 from render.camera import Camera, Intrinsics
 
 from .conftest import TINY_SCENE, write_scene
@@ -80,6 +80,24 @@ def lens_capture(tmp_path_factory) -> Path:
     proc = lumigraph("capture", scene, "--out", root / "capture", "--quiet")
     assert proc.returncode == 0, proc.stderr
     return root / "capture"
+
+
+def test_a_nerf_that_stopped_short_gives_no_loss_figure():
+    """Session 35's real_lens study: one point's NeRF hit the minutes cap at 17 of 150 steps and its
+    'loss' read as the focal error's. A point (or the truth) whose NeRF stopped short now has no NeRF
+    loss, only the reason; the slab's loss stays, and complete points keep theirs."""
+    rows = [{"kind": "truth", "name": "truth", "nerf_steps": 150, "nerf_display_psnr": 21.0, "slab_display_psnr": 26.0},
+            {"kind": "rotation_deg", "name": "rotation_deg_1", "nerf_steps": 150, "nerf_display_psnr": 20.3,
+             "slab_display_psnr": 18.3},
+            {"kind": "focal_pct", "name": "focal_pct_0.1", "nerf_steps": 17, "nerf_display_psnr": 12.0,
+             "slab_display_psnr": 25.5}]
+    got = {h["figure"]: h for h in loss_headline(rows, 150)}
+    assert got["nerf loss, rotation_deg_1"]["value"] == 0.7 and got["slab loss, rotation_deg_1"]["value"] == 7.7
+    assert got["nerf loss, focal_pct_0.1"]["value"] is None
+    assert "stopped at 17 of 150 steps" in got["nerf loss, focal_pct_0.1"]["note"]
+    assert got["slab loss, focal_pct_0.1"]["value"] == 0.5
+    rows[0]["nerf_steps"] = 40  # the truth stopped short: no NeRF loss is comparable
+    assert all(h["value"] is None for h in loss_headline(rows, 150) if h["figure"].startswith("nerf"))
 
 
 def test_pose_tolerance_study_through_the_cli(lens_capture, tmp_path):
