@@ -1006,10 +1006,14 @@ def accumulate_replicates(r1, start, npix, sample0, L, block=0):
     indices [start, start + len(L)) (flat = (s - sample0) * npix + pixel); r1 (R, npix, 3).
     block > 0 ("sobol-blocks", render.sobol.block_size): r1[min(s div block, R - 1), pixel]."""
     nrep = r1.shape[0]
+    p = start % npix  # pixel and sample advanced by counters: no division per path
+    s = sample0 + start // npix
+    r = min(s // block, nrep - 1) if block > 0 else s % nrep
     for i in range(len(L)):
-        flat = start + i
-        p = flat % npix
-        s = sample0 + flat // npix
-        r = min(s // block, nrep - 1) if block > 0 else s % nrep
         for c in range(3):
             r1[r, p, c] += L[i, c]
+        p += 1
+        if p == npix:
+            p = 0
+            s += 1
+            r = min(s // block, nrep - 1) if block > 0 else s % nrep
