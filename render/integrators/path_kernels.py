@@ -393,6 +393,41 @@ def _bounce_numbers(sampler, keys, i0, i1, base, roulette, U):
 
 
 @njit(**_JIT)
+def _light_samples(sampler, cdf, area, n_area, floor, ids, tris, prim, hu, hv, i0, n, U, K, A):
+    """The next-event light samples of paths i0 .. i0 + n - 1 from their numbers U
+    (:func:`_bounce_numbers`): K[k] the light picked, A[:, k] the area entry's sample from the
+    hit point (valid, wi (3), dist, Li (3), pdf of :func:`_sample_area`; garbage for misses and
+    delta lights, which :func:`_next_event` does not read). The pick is a scalar loop (its
+    search has a data-dependent length); the sampling is a branch-free one, vectorized. The
+    Sobol sampler picks with dimension base + 1 and reuses it, rescaled within the picked
+    light's CDF interval, as the point's first coordinate: uniform again, so each light's
+    points keep the pair's stratification (pbrt's remapped u)."""
+    total = cdf[len(cdf) - 1]
+    for k in range(n):
+        if sampler == SAMPLER_SOBOL:
+            ua = U[1, k]
+            kk = _pick(cdf, ua)
+            lo = cdf[kk - 1] if kk > 0 else 0.0
+            width = cdf[kk] - lo
+            u1 = min((ua * total - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
+            A[0, k] = max(u1, 0.0)
+        else:
+            kk = _pick(cdf, U[0, k])
+            A[0, k] = U[1, k]
+        K[k] = kk
+    last = max(n_area - 1, 0)
+    for k in range(n):
+        i = i0 + k
+        pr = prim[i]
+        t = ids[max(pr, 0)]
+        px, py, pz = _hit_point(tris, t, np.float64(hu[i]), np.float64(hv[i]))
+        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, min(K[k], last), floor, px, py, pz, A[0, k], U[2, k])
+        A[0, k] = 1.0 if ok else 0.0
+        A[1, k], A[2, k], A[3, k], A[4, k] = lx, ly, lz, ldist
+        A[5, k], A[6, k], A[7, k], A[8, k] = L0, L1, L2, lpdf
+
+
+@njit(**_JIT)
 def uniform_dims(keys, dim0, count, sampler=SAMPLER_INDEPENDENT):
     """(N, count) uniforms of dimensions dim0.. (equals render.sampling.uniform_block, or
     render.sobol.sobol_block when ``sampler`` is SAMPLER_SOBOL)."""
@@ -708,12 +743,11 @@ def _queue_shadow_to(o32, d32, t32, n, px, py, pz, ngx, ngy, ngz, eps, wx, wy, w
 
 
 @njit(inline="always", **_JIT)
-def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, us,
+def _next_event(cfg, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor, pre,
                 p, n, ng, eps, b, a, slot, q_o32, q_d32, q_t32, q_idx, q_val, nq, extent):
     """Next-event estimation at a Lambertian vertex p (shading normal n, geometric ng; 3-tuples)
-    of albedo a and throughput b (3-tuples): one light sample (us: the numbers of the pick and
-    the point, dimensions base .. base + 2 of :func:`_bounce_numbers`; the Sobol sampler picks
-    with base + 1 and reuses it, rescaled, for the point),
+    of albedo a and throughput b (3-tuples): one light sample (pre: the pick k and, when k is an
+    area entry, its sample (valid, wi (3), dist, Li (3), pdf), drawn by :func:`_light_samples`),
     queued as a shadow ray (:func:`_queue_shadow_to`) with its unoccluded contribution. Returns
     the new queue length. (Points and colours travel as tuples: CPython passes calls of more
     than 30 arguments as *args, which numba cannot inline.)"""
@@ -722,21 +756,8 @@ def _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, f
     ngx, ngy, ngz = ng
     b0, b1, b2 = b
     a0, a1, a2 = a
-    u0, ua, u2 = us
-    if cfg.sampler == SAMPLER_SOBOL:
-        # pick and point from one 2-D group (base + 1, base + 2): the pick's number, rescaled
-        # within the picked light's CDF interval, is uniform again and becomes the point's first
-        # coordinate, so each light's points keep the pair's stratification (pbrt's remapped u)
-        k = _pick(cdf, ua)
-        lo = cdf[k - 1] if k > 0 else 0.0
-        width = cdf[k] - lo
-        u1 = min((ua * cdf[len(cdf) - 1] - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
-        u1 = max(u1, 0.0)
-    else:
-        k = _pick(cdf, u0)
-        u1 = ua
+    k, ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = pre
     if k < n_area:
-        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, k, floor, px, py, pz, u1, u2)
         ldelta = False
     else:
         ok, lx, ly, lz, ldist, L0, L1, L2 = _sample_delta(d_kind, d_pos, d_dir, d_I, d_cos, k - n_area,
@@ -850,10 +871,16 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
     nq = 0
     nl = 0
     U = np.empty((7, _BLOCK))
+    K = np.empty(_BLOCK, np.int64)
+    A = np.empty((9, _BLOCK))
+    nee = cfg.nee_any and has_lights
     for i in range(len(prim)):
         k = i % _BLOCK
         if k == 0:  # the next block's random numbers, in one vectorized pass
-            _bounce_numbers(cfg.sampler, keys, i, min(i + _BLOCK, len(prim)), base, roulette, U)
+            i1 = min(i + _BLOCK, len(prim))
+            _bounce_numbers(cfg.sampler, keys, i, i1, base, roulette, U)
+            if nee:
+                _light_samples(cfg.sampler, cdf, area, n_area, floor, ids, tris, prim, hu, hv, i, i1 - i, U, K, A)
         slot = idx[i]
         fl = flags[i]
         prev_delta = (fl & F_DELTA) != 0
@@ -888,9 +915,9 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         eps = _offset(px, py, pz, extent)
         if kind == LAMBERT:
             a0, a1, a2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
-            if cfg.nee_any and has_lights:
-                nq = _next_event(cfg, cdf, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor,
-                                 (U[0, k], U[1, k], U[2, k]),
+            if nee:
+                nq = _next_event(cfg, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor,
+                                 (K[k], A[0, k] > 0.0, A[1, k], A[2, k], A[3, k], A[4, k], A[5, k], A[6, k], A[7, k], A[8, k]),
                                  (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
                                  q_o32, q_d32, q_t32, q_idx, q_val, nq, extent)
             if not cfg.continue_diffuse:
