@@ -25,7 +25,8 @@ import numpy as np
 import embreex.mesh_construction as _emesh
 import embreex.rtcore_scene as _escene
 
-from . import embree_direct as _edirect
+from . import embree_lib as _elib
+from . import path_aot as _aot
 from .scene import Scene
 
 __all__ = ["Geometry", "Hits", "Accel", "spawn_origin", "offset_eps", "OFFSET_REL"]
@@ -34,6 +35,13 @@ __all__ = ["Geometry", "Hits", "Accel", "spawn_origin", "offset_eps", "OFFSET_RE
 #: watertight test adds a few ulps more; 1e-6 |p| is ~16 ulps (tests probe it at mm scale)
 OFFSET_REL = 1e-6
 _MIN_SPLIT = 16384  # smallest batch worth splitting over threads
+
+
+def _ray_kernels(*rays):
+    """The compiled Embree queries for these rays (render.path_aot: the ahead-of-time extension's
+    when it is loaded and the rays have the types it was compiled for, else numba's)."""
+    k = _aot.kernels()
+    return k if not k.aot or _aot.rays_ok(*rays) else _aot.jit_kernels()
 
 
 @dataclass
@@ -155,15 +163,15 @@ class Accel:
         keep = g.valid if subset is None else g.valid & np.asarray(subset, bool)
         self._ids = np.nonzero(keep)[0].astype(np.int64)  # embree primID -> global tri
         self._scene = None
-        #: the same triangles as a scene the compiled kernels query directly (render.embree_direct),
+        #: the same triangles as a scene the compiled kernels query directly (render.embree_lib),
         #: or None (embreex's library not found, or no triangles)
         self.direct = None
         if len(self._ids):
             tv = np.stack([g.v0, g.v0 + g.e1, g.v0 + g.e2], axis=1)[self._ids].astype(np.float32)
             self._scene = _escene.EmbreeScene()
             _emesh.TriangleMesh(self._scene, np.ascontiguousarray(tv))
-            if _edirect.AVAILABLE:
-                self.direct = _edirect.DirectScene(tv)
+            if _elib.AVAILABLE:
+                self.direct = _elib.DirectScene(tv)
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
 
     def close(self) -> None:
@@ -252,7 +260,7 @@ class Accel:
         n = len(o32)
         prim, tfar = np.empty(n, np.int32), np.empty(n, np.float32)
         u, v = np.empty(n, np.float32), np.empty(n, np.float32)
-        _edirect.intersect_many(self.direct.handle, o32, d32, prim, tfar, u, v)
+        _ray_kernels(o32, d32).intersect_many(self.direct.handle, o32, d32, prim, tfar, u, v)
         return prim, tfar, u, v
 
     def occluded_fast(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:
@@ -260,7 +268,7 @@ class Accel:
         if self.direct is None or len(o32) == 0:
             return self.occluded_raw(o32, d32, t32)
         occ = np.empty(len(o32), np.int32)
-        _edirect.occluded_many(self.direct.handle, o32, d32, t32, occ)
+        _ray_kernels(o32, d32, t32).occluded_many(self.direct.handle, o32, d32, t32, occ)
         return occ
 
     def occluded_raw(self, o32: np.ndarray, d32: np.ndarray, t32: np.ndarray) -> np.ndarray:

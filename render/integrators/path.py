@@ -13,6 +13,7 @@ at the first diffuse vertex.
 
 Paths are traced *wavefront*: an array of live paths, each bounce one Embree query for all of
 them, one compiled shading pass over the hits (:mod:`render.integrators.path_kernels`, numba;
+compiled ahead of time into an extension when `make setup` built one, :mod:`render.path_aot`;
 it writes the next rays and the shadow rays as the float32 arrays Embree reads and compacts
 finished paths away), one occlusion query for all shadow rays. Embree is called from compiled
 code through the library embreex ships (:mod:`render.embree_direct`), or through embreex's
@@ -57,12 +58,12 @@ import numpy as np
 
 from ..camera import Camera
 from ..film import Film, RenderResult
+from ..path_aot import for_scene
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
 from ..sobol import REPLICATES, SAMPLERS, block_size, key_replicates, replicate_of, replicates_for
-from .path_kernels import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
-                           PinholeCamera, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays,
-                           kernel_scene, last_bounce_queue, shade_bounce)
+from .path_types import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
+                         PinholeCamera, kernel_scene)
 from .prepared import PreparedScene
 from .settings import RenderSettings, check_heuristic, check_sampler, check_strategy, heuristic_exponent
 
@@ -149,7 +150,8 @@ def _last_ray_buffers(n: int) -> tuple:
 
 
 def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emitters: bool,
-           start: int, stop: int, sample0: int, replicates: int = REPLICATES) -> tuple[np.ndarray, np.ndarray, int]:
+           start: int, stop: int, sample0: int, replicates: int = REPLICATES,
+           kern=None) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
     + pixel); replicates: the Sobol sampler's R (render.sobol.replicates_for). Returns ((N,)
     int64 pixels, (N, 3) float64 radiance, rays traced).
@@ -159,8 +161,10 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     the shadow rays, then one occlusion call for every shadow ray of the bounce (next-event
     estimation and, for `direct`, the last BSDF rays, first traced against the emitter-only BVH
     when ``query_emitters``).
+    kern: the kernels (:func:`render.path_aot.for_scene`; default: those for ``ps``).
     """
     ks = kernel_scene_of(ps)
+    kern = kern or for_scene(ks)
     accel = ps.accel
     k = cam.intrinsics
     n = stop - start
@@ -173,8 +177,8 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     jit = np.empty((n, 2))
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
-    sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                       cur[5], cur[6], jit, cfg.sampler, replicates)
+    kern.sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
+                            cur[5], cur[6], jit, cfg.sampler, replicates)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -192,19 +196,20 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
         idx, keys, beta, pdf, flags, o32, d32 = (a[:m] for a in cur)
         prim, tfar, hu, hv = accel.intersect_fast(o32, d32)
         nrays += m
-        nn, nq, nl = shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, flags, L,
-                                  *nxt, *q, *last)
+        nn, nq, nl = kern.shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, flags, L,
+                                       *nxt, *q, *last)
         if nl:
             l_o32, l_d32 = last[0][:nl], last[1][:nl]
             ehits = no_hits
             if query_emitters:
                 ehits = ps.emit_accel.intersect_fast(l_o32, l_d32)[:2]
                 nrays += nl
-            nq = last_bounce_queue(ks, cfg, nl, ehits[0], ehits[1], last[2], last[3], last[4], l_o32, l_d32, nq, *q)
+            nq = kern.last_bounce_queue(ks, cfg, nl, ehits[0], ehits[1], last[2], last[3], last[4],
+                                        l_o32, l_d32, nq, *q)
         if nq:
             occ = accel.occluded_fast(q[0][:nq], q[1][:nq], q[2][:nq])
             nrays += nq
-            add_unoccluded(L, q[3], q[4], occ)
+            kern.add_unoccluded(L, q[3], q[4], occ)
         cur, nxt, m = nxt, cur, nn
     return pix, L, nrays
 
@@ -227,13 +232,13 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     k = camera.intrinsics
     total = k.width * k.height * (b - a)
     chunks = [(c, min(c + settings.batch_paths, total)) for c in range(0, total, settings.batch_paths)]
-    kernel_scene_of(ps)
+    kern = for_scene(kernel_scene_of(ps))  # the AOT extension's kernels, or numba's
     replicates = replicates_for(settings.spp)  # of the variance estimate
     block = block_size(sampler, settings.spp)  # 0: interleaved replicates, else consecutive blocks
     keys_r = key_replicates(sampler, settings.spp)  # 1 under "sobol-blocks": one sequence per pixel
 
     def work(chunk):
-        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, keys_r)
+        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, keys_r, kern)
 
     film = Film(k.width, k.height)
     npix = k.width * k.height
@@ -246,9 +251,9 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     try:
         results = pool.map(work, chunks) if pool is not None else map(work, chunks)
         for ch, (pix, L, nr) in zip(chunks, results):  # in chunk order: the same sums whatever the threads
-            accumulate(film.s1, film.s2, film.n, pix, L)
+            kern.accumulate(film.s1, film.s2, film.n, pix, L)
             if film.r1 is not None:
-                accumulate_replicates(film.r1, ch[0], npix, a, L, block)
+                kern.accumulate_replicates(film.r1, ch[0], npix, a, L, block)
             rays += nr
             if progress is not None:
                 progress(ch[1], total)

@@ -83,7 +83,8 @@ def test_render_refuses_unused_options_before_rendering():
 
 def test_kernel_cache_loads_in_a_second_process():
     """numba's on-disk cache of the compiled kernels (cache=True) still works in their new home:
-    a second process loads shade_bounce and sample_camera_rays from it instead of compiling them."""
+    a second process loads shade_bounce and sample_camera_rays from it instead of compiling them
+    (the JIT kernels: LUMIGRAPH_AOT=0, else the ahead-of-time extension of render.path_aot renders)."""
     probe = (
         "import sys; sys.path.insert(0, 'tests/render')\n"
         "from cornell_box import cornell_camera, cornell_scene\n"
@@ -92,8 +93,9 @@ def test_kernel_cache_loads_in_a_second_process():
         "print(sum(sum(getattr(pk, f).stats.cache_hits.values()) for f in ('shade_bounce', 'sample_camera_rays')),"
         " sum(sum(getattr(pk, f).stats.cache_misses.values()) for f in ('shade_bounce', 'sample_camera_rays')))\n")
     root = Path(integrators.__file__).resolve().parents[2]
-    runs = [subprocess.run([sys.executable, "-c", probe], cwd=root, capture_output=True, text=True, timeout=600)
-            for _ in range(2)]
+    env = {**os.environ, "LUMIGRAPH_AOT": "0"}
+    runs = [subprocess.run([sys.executable, "-c", probe], cwd=root, capture_output=True, text=True, timeout=600,
+                           env=env) for _ in range(2)]
     assert all(r.returncode == 0 for r in runs), runs[-1].stderr[-2000:]
     hits, misses = map(int, runs[1].stdout.split())
     assert (hits, misses) == (2, 0)
