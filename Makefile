@@ -13,7 +13,8 @@ export PYOPENGL_PLATFORM := egl
 install: $(STAMP) $(CONFORMANCE)
 
 # the renderers' numba kernels compiled ahead of first use (once per source tree: a marker in the
-# cache folder, keyed by render/'s sources, makes later runs a no-op)
+# cache folder, keyed by render/'s sources, makes later runs a no-op), then the path tracer's kernels
+# as an extension that imports without numba (render/path_aot_build.py; a failed build keeps the JIT)
 setup: install
 	$(BIN)/python -m pipeline.warm_kernels
 

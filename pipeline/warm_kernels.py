@@ -16,10 +16,16 @@ first ``lumigraph nerf`` after a checkout compiled it inside its ``--minutes`` b
 ``--only path,direct`` warms just those integrators (`make demo`: the default scene's stages use
 the path tracer alone, so a fresh clone's demo does not wait for bdpt's or volpath's kernels);
 each warmed integrator leaves its own marker (``warm.<integrator>``), the full set the ``warm`` one.
+
+Without ``--only`` it then builds the path tracer's ahead-of-time extension (render.path_aot_build,
+15 to 30 s, once per source tree: a process rendering with ``path`` or ``direct`` then imports no
+numba). A failed build is reported and ignored (exit status unchanged): the JIT kernels remain;
+``LUMIGRAPH_AOT=0`` skips it.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
@@ -28,6 +34,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from render._kernel_cache import kernel_cache_dir
+from render.path_aot_build import build as build_aot
 
 #: (built-in scene, integrator) rendered at 8 x 6, 1 spp: every integrator of the registry once,
 #: each on a scene it accepts (volpath's media need a participating medium; `direct` is refused
@@ -94,6 +101,8 @@ def main(argv: list[str] | None = None) -> int:
                                                     if i in wanted and not (folder / f"{MARKER}.{i}").is_file()]
     if not todo:
         print(f"warm_kernels: kernels already compiled ({folder})")
+        if args.only is None:
+            _build_aot()
         return 0
     print(f"warm_kernels: compiling {', '.join(i for _, i in todo)} kernels into {folder} (once per source tree)",
           flush=True)
@@ -111,7 +120,24 @@ def main(argv: list[str] | None = None) -> int:
         (folder / f"{MARKER}.{name}").write_text(f"{name} {seconds:.1f}\n")
     if all((folder / f"{MARKER}.{i}").is_file() for i in known):
         (folder / MARKER).write_text("".join((folder / f"{MARKER}.{i}").read_text() for i in known))
+    if args.only is None:
+        _build_aot()
     return 0
+
+
+def _build_aot() -> None:
+    """The path tracer's ahead-of-time extension (a no-op when built; skipped with LUMIGRAPH_AOT=0);
+    a failure is only reported: the JIT kernels render the same."""
+    if os.environ.get("LUMIGRAPH_AOT", "1").strip() == "0":
+        return
+    try:
+        ok = build_aot() == 0
+    except Exception as e:  # noqa: BLE001  (set-up goes on with the JIT kernels)
+        print(f"path_aot_build: {type(e).__name__}: {e}", file=sys.stderr)
+        ok = False
+    if not ok:
+        print("warm_kernels: the ahead-of-time path kernels were not built; the JIT ones will be used",
+              file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,7 @@ def test_a_warm_tree_is_a_no_op_through_the_process(tmp_path):
     folder = tmp_path / sources_digest()
     folder.mkdir()
     (folder / MARKER).write_text("path 1.0\n")
-    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path)}
+    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path), "LUMIGRAPH_AOT": "0"}  # no AOT build
     r = subprocess.run([sys.executable, "-m", "pipeline.warm_kernels"], cwd=REPO, env=env, capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0, r.stderr
@@ -39,7 +39,7 @@ def test_only_a_subset_and_its_markers_through_the_process(tmp_path):
     folder = tmp_path / sources_digest()
     folder.mkdir()
     (folder / f"{MARKER}.path").write_text("path 1.0\n")
-    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path)}
+    env = {**os.environ, "LUMIGRAPH_NUMBA_CACHE_BASE": str(tmp_path), "LUMIGRAPH_AOT": "0"}  # no AOT build
     run = lambda *a: subprocess.run([sys.executable, "-m", "pipeline.warm_kernels", *a], cwd=REPO, env=env,
                                     capture_output=True, text=True, timeout=60)
     r = run("--only", "path")
@@ -76,3 +76,30 @@ def test_lumigraph_run_compiles_the_reference_kernels_beside_the_capture(tmp_pat
     (folder / f"{MARKER}.volpath").unlink()
     (folder / MARKER).write_text("all 1.0\n")  # `make setup`'s marker: every integrator warm
     assert warm_reference_kernels(rig) is None
+
+
+def test_setup_builds_the_aot_extension_and_survives_its_failure(tmp_path, monkeypatch, capsys):
+    """Without ``--only`` (make setup) the path tracer's ahead-of-time extension is built after the
+    kernels are warm; a failed build (or one that raises) leaves the exit status 0; LUMIGRAPH_AOT=0
+    and ``--only`` skip it."""
+    import pipeline.warm_kernels as wk
+
+    folder = tmp_path / sources_digest()
+    folder.mkdir()
+    (folder / MARKER).write_text("all 1.0\n")
+    monkeypatch.setenv("LUMIGRAPH_NUMBA_CACHE_BASE", str(tmp_path))
+    monkeypatch.setattr(wk, "warm_nerf_march", lambda: 0.0)
+    calls = []
+    for outcome in (0, 1, RuntimeError("no compiler")):
+        def fake_build(outcome=outcome):
+            calls.append(outcome)
+            if isinstance(outcome, Exception):
+                raise outcome
+            return outcome
+        monkeypatch.setattr(wk, "build_aot", fake_build)
+        assert wk.main([]) == 0
+    assert calls[0] == 0 and calls[1] == 1 and len(calls) == 3
+    assert capsys.readouterr().err.count("JIT ones will be used") == 2
+    assert wk.main(["--only", "path"]) == 0 and len(calls) == 3
+    monkeypatch.setenv("LUMIGRAPH_AOT", "0")
+    assert wk.main([]) == 0 and len(calls) == 3
