@@ -43,7 +43,8 @@ scenes = ((cornell_scene(), cornell_camera(12, 10), None), _tiny_scene() + ({"in
 fx = {"direct", "soft_shadows", "shadows", "specular"}
 configs = [("path", 2, {"sampler": "sobol-blocks"}), ("path", 1, {"sampler": "sobol"}),
            ("path", 1, {"sampler": "independent"}), ("path", 1, {"strategy": "light"}),
-           ("path", 2, {"strategy": "bsdf", "sampler": "sobol"}), ("direct", 1, {}), ("direct", 2, {"strategy": "light"})]
+           ("path", 2, {"strategy": "bsdf", "sampler": "sobol"}), ("direct", 1, {}),
+           ("direct", 2, {"strategy": "light"})]
 out = {}
 for i, (integrator, threads, options) in enumerate(configs):
     for j, (scene, camera, extra) in enumerate(scenes):
@@ -142,7 +143,8 @@ import json, sys
 from pipeline.cli import main
 code = main(["reference", "cornell", "--spp", "1", "--size", "32", "32", "--out", sys.argv[1], "-q"])
 from render import path_aot
-print(json.dumps({"code": code, "aot": path_aot.kernels().aot, "numba": sorted(m for m in sys.modules if m.split(".")[0] in ("numba", "llvmlite"))}))
+jit_modules = sorted(m for m in sys.modules if m.split(".")[0] in ("numba", "llvmlite"))
+print(json.dumps({"code": code, "aot": path_aot.kernels().aot, "numba": jit_modules}))
 """
     out = _run(script, str(tmp_path / "ref"))
     assert out == {"code": 0, "aot": True, "numba": []}
