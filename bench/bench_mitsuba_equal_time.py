@@ -15,6 +15,10 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   vertex 3 / 5 / off, max_depth 8 / unlimited (64), MIS power / balance, sampler Sobol /
   independent, and Mitsuba's path (its own roulette from depth 5, unlimited depth) with its
   independent and multijitter samplers; ``efficiency`` = 1 / (MSE x seconds).
+* ``seed_spread`` (with the variants): ours (max_depth 8, 64, and Mitsuba's roulette policy) and
+  Mitsuba's two samplers at SEED_SPREAD_SPP in this process, SEED_SPREAD_SEEDS seeds each: per-pixel
+  variance from the spread between seeds (no reference enters), render seconds, and variance x
+  seconds against multijitter's (the equal-time MSE ratio without start-up).
 * ``equal_time``: for budgets of 5 s and 30 s of whole-process wall time (times the machine's
   inflation: the median ``lumigraph --help`` time over HELP_QUIET_S; or ``--budgets A,B``), each contestant's spp
   chosen from a two-point calibration of its own whole-process time (t = a + b spp; each point the
@@ -66,6 +70,8 @@ SIZE = 128
 REF_SPP = 16384
 REF_DEPTH = 64
 SPP_VARIANTS = 64
+#: the seed-spread study's samples per pixel and seeds (variance without a reference)
+SEED_SPREAD_SPP, SEED_SPREAD_SEEDS = 1024, 4
 BUDGETS_S = (5.0, 30.0)
 #: interleaved repeats of every equal-time contestant per budget (medians reported)
 REPEATS = 3
@@ -216,6 +222,41 @@ def _variants(scene, cam, ps, ref_mean, noise, spp: int) -> dict:
     return out
 
 
+def _seed_spread(scene, cam, ps, mi, scene_json: Path, spp: int = SEED_SPREAD_SPP, seeds: int = SEED_SPREAD_SEEDS) -> dict:
+    """Per-sample variance of ours and Mitsuba's with no reference: each configuration rendered
+    in this process under ``seeds`` seeds (interleaved), a render's per-pixel variance estimated
+    by the spread between seeds (unbiased whatever the sampler's stratification), its mean over
+    pixels and channels beside the median render seconds. ``variance_x_seconds`` is inverse
+    efficiency; its ratio to multijitter's is the equal-time MSE ratio in process (no start-up)."""
+    from render.integrators import RenderSettings, render
+
+    d = json.loads(scene_json.read_text())
+    d["sensor"]["to_world"] = mi.ScalarTransform4f().look_at(**d["sensor"].pop("look_at"))
+    ours = {"ours sobol-blocks, max_depth 8 (default)": {},
+            "ours sobol-blocks, max_depth 64": {"max_depth": 64},
+            "ours sobol-blocks, roulette from vertex 5, max_depth 64 (Mitsuba's policy)": {"max_depth": 64, "rr_depth": 5}}
+    runs: dict[str, tuple[list, list]] = {name: ([], []) for name in [*ours, "mitsuba multijitter", "mitsuba independent"]}
+    for seed in range(11, 11 + seeds):
+        for name, (imgs, secs) in runs.items():
+            t0 = time.perf_counter()
+            if name in ours:
+                img = render(scene, cam, RenderSettings(integrator="path", spp=spp, seed=seed, **ours[name]), prepared=ps).mean
+            else:
+                d["sensor"]["sampler"] = {"type": name.split()[1], "sample_count": spp}
+                img = np.asarray(mi.render(mi.load_dict(d), seed=seed))[..., :3]
+            secs.append(time.perf_counter() - t0)
+            imgs.append(np.asarray(img, np.float64))
+    out = {}
+    for name, (imgs, secs) in runs.items():
+        var = float(np.mean(np.var(np.array(imgs), axis=0, ddof=1)))
+        sec = statistics.median(secs)
+        out[name] = {"variance": var, "seconds": round(sec, 3), "variance_x_seconds": var * sec}
+    mj = out["mitsuba multijitter"]["variance_x_seconds"]
+    for row in out.values():
+        row["to_multijitter"] = row["variance_x_seconds"] / max(mj, 1e-300)
+    return {"spp": spp, "seeds": seeds, "rows": out}
+
+
 def _embree(scene, ps, ours_rays_per_s: float, ours_paths_per_s: float, cam, threads: int = 2) -> dict:
     """Bare Embree rays/s on camera rays and on cosine bounce rays from their first hits: the
     kernels' own packet queries (render.accel's intersect_fast), split over ``threads`` threads as
@@ -352,6 +393,7 @@ def main(argv: list[str] | None = None) -> None:
                                                                         "whole_process_s": round(wall, 3),
                                                                         "image_mean": img.reshape(-1, 3).astype(np.float64).mean(0).tolist()}
             figures["variants_mitsuba"] = {"spp": SPP_VARIANTS, **mits}
+            figures["seed_spread"] = _seed_spread(scene, cam, ps, mi, json_unlimited)
         if mi is not None:
             calib_mi = {s: [(n, min(_run_mitsuba(json_unlimited, s, n, 1, tmp)[1] for _ in range(2))) for n in (16, 512)]
                         for s in ("independent", "multijitter")}
