@@ -148,3 +148,8 @@ print(json.dumps({"code": code, "aot": path_aot.kernels().aot, "numba": jit_modu
 """
     out = _run(script, str(tmp_path / "ref"))
     assert out == {"code": 0, "aot": True, "numba": []}
+    # README's switch: LUMIGRAPH_AOT=0 renders with numba's kernels, the same bytes
+    off = _run(script, str(tmp_path / "ref_jit"), LUMIGRAPH_AOT="0")
+    assert off["code"] == 0 and off["aot"] is False and "numba" in off["numba"]
+    exrs = sorted((tmp_path / "ref" / "linear").glob("*.exr"))
+    assert exrs and all(f.read_bytes() == (tmp_path / "ref_jit" / "linear" / f.name).read_bytes() for f in exrs)
