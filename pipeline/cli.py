@@ -50,8 +50,9 @@ def _cluster(scheduler: Optional[str], workers: Optional[int]):
 
 
 def _load(scene: str):
-    from rig.build import load_scene
-    from rig.spec import resolve_scene_path
+    # through the scene cache: a scene loaded before skips pydantic and YAML (rig/scene_cache.py)
+    from rig.scene_cache import load_scene
+    from rig.scene_file import resolve_scene_path
 
     return load_scene(scene), resolve_scene_path(scene)
 
@@ -382,7 +383,7 @@ def _bad_input_types() -> tuple[type, ...]:
     CaptureError when the verb imported their modules (a module never imported cannot have
     raised; importing rig here would load trimesh and scipy for ``--help`` and every verb)."""
     types = [BadInput, FileNotFoundError]
-    for module, name in (("rig.spec", "SpecError"), ("rig.capture", "CaptureError")):
+    for module, name in (("rig.scene_file", "SpecError"), ("rig.capture", "CaptureError")):
         if module in sys.modules:
             types.append(getattr(sys.modules[module], name))
     return tuple(types)

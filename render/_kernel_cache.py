@@ -12,6 +12,7 @@ Imported first by render/__init__.py, before any kernel module is decorated. A u
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import sys
@@ -20,8 +21,10 @@ from pathlib import Path
 _RENDER = Path(__file__).resolve().parent
 
 
+@functools.lru_cache(maxsize=None)
 def sources_digest(root: Path = _RENDER) -> str:
-    """12 hex digits of a SHA-1 over every ``*.py`` under ``root`` (relative path and bytes)."""
+    """12 hex digits of a SHA-1 over every ``*.py`` under ``root`` (relative path and bytes);
+    read once per process (the render package's import and the AOT loader both ask)."""
     h = hashlib.sha1()
     for p in sorted(root.rglob("*.py")):
         h.update(p.relative_to(root).as_posix().encode())

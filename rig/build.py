@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,6 +13,7 @@ from render.scene import (Dielectric, DirectionalLight, Emissive, Lambertian, Me
                           Scene, SceneObject, SpotLight, TriangleMesh)
 
 from .layouts import layout_cameras, make_intrinsics
+from .rig_scene import RigScene
 from .spec import (MAX_MAGNITUDE, DielectricSpec, EmissiveSpec, LambertianSpec, MirrorSpec, PointLightSpec,
                    RoughConductorSpec, RoughDielectricSpec, SceneSpec, ShapeSpec, SpecError, SpotLightSpec, load_spec,
                    resolve_file, resolve_scene_path)
@@ -24,17 +24,6 @@ if TYPE_CHECKING:  # imported where a sphere, a cylinder or a mesh file needs it
     import trimesh  # arrays, so a scene of those (the Cornell box) renders without trimesh's ~1 s import
 
 __all__ = ["RigScene", "build_scene", "load_scene", "quad_mesh", "box_mesh", "box_face_quads"]
-
-
-@dataclass
-class RigScene:
-    """A loaded scene: the render model, cameras per split, and what a capture records about it."""
-
-    spec: SceneSpec
-    scene: Scene
-    cameras: dict[str, list[Camera]]
-    #: calibration targets in the scene: name -> {"board": CharucoTexture dict, "board_to_world": 4x4}
-    targets: dict[str, dict] = field(default_factory=dict)
 
 
 #: trimesh.creation.box's unit cube (vertices at +-0.5, x slowest) and its faces, outward-wound:

@@ -23,12 +23,12 @@ from typing import Annotated, Literal, Union
 import yaml
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from .scene_file import MAX_SPEC_BYTES, SCENES_DIR, SpecError, note_read, read_spec_bytes, resolve_scene_path
+
 __all__ = ["SceneSpec", "SpecError", "load_spec", "resolve_scene_path", "resolve_file", "SCENES_DIR", "view_names",
            "layout_count", "view_sequences",
            "MAX_VIEWS", "MAX_PIXELS_PER_VIEW", "MAX_TEXTURE_SIDE", "MAX_MAGNITUDE", "MAX_NAME_CHARS",
            "MAX_SPEC_BYTES", "MAX_YAML_NODES", "CHARUCO_DICTIONARIES", "SKIMAGE_IMAGES"]
-
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 #: every number in a spec lies in [-MAX_MAGNITUDE, MAX_MAGNITUDE], so products of a few of them
 #: (radiance x exposure x gain, coordinates squared) stay finite in float32
@@ -43,8 +43,6 @@ MAX_TEXTURE_SIDE = 8192
 MAX_NAME_CHARS = 100
 #: characters of a file path inside a spec
 MAX_PATH_CHARS = 4096
-#: size of a spec file
-MAX_SPEC_BYTES = 4 * 1024 * 1024
 #: YAML nodes of a spec with every alias expanded (an alias bomb expands to billions)
 MAX_YAML_NODES = 1_000_000
 #: largest seed (the renderers hash seeds as unsigned 64-bit integers)
@@ -65,22 +63,6 @@ CHARUCO_DICTIONARIES = {
 SKIMAGE_IMAGES = ("astronaut", "brick", "camera", "cat", "cell", "checkerboard", "chelsea", "clock", "coffee",
                   "coins", "colorwheel", "grass", "gravel", "horse", "hubble_deep_field", "immunohistochemistry",
                   "logo", "microaneurysms", "moon", "page", "retina", "rocket", "text")
-
-
-class SpecError(ValueError):
-    """A scene spec is malformed; the message is one line naming the file and field.
-
-    Characters that could break the line or fool a terminal (controls, line separators,
-    surrogates) are shown as escapes, whatever the spec put in a name.
-    """
-
-    def __init__(self, message: str):
-        super().__init__(_printable(str(message)))
-
-
-def _printable(text: str) -> str:
-    return "".join(c if unicodedata.category(c)[0] != "C" and c not in "\u2028\u2029"
-                   else c.encode("unicode_escape", "backslashreplace").decode("ascii") for c in text)
 
 
 # ---------------------------------------------------------------- checked scalar types
@@ -793,26 +775,6 @@ def _format_error(path: Path, err: ValidationError) -> str:
     return f"{path}: {where}{msg}"
 
 
-def resolve_scene_path(scene: str | Path) -> Path:
-    """A built-in scene name (``scenes/<name>.yaml``) or a path to a YAML file."""
-    p = Path(scene)
-    try:
-        if p.suffix in (".yaml", ".yml") or p.exists():
-            if not p.is_file():
-                raise SpecError(f"{p}: scene file not found")
-            return p
-        builtin = SCENES_DIR / f"{scene}.yaml"
-        found = builtin.is_file()
-    except (OSError, ValueError) as exc:  # a name too long, a NUL byte, a permission
-        if isinstance(exc, SpecError):
-            raise
-        raise SpecError(f"{scene}: not a readable scene file ({type(exc).__name__})") from None
-    if not found:
-        known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.yaml")))
-        raise SpecError(f"{scene}: not a scene file nor a built-in scene (built-in: {known})")
-    return builtin
-
-
 def resolve_file(base_dir: Path, name: str, field: str) -> Path:
     """A file named in a spec (relative to the spec's folder), checked to be a regular file;
     SpecError naming ``field`` otherwise."""
@@ -825,6 +787,7 @@ def resolve_file(base_dir: Path, name: str, field: str) -> Path:
             raise SpecError(f"{field}: file not found: {path}")
     except OSError as exc:  # a name too long for the filesystem, a permission
         raise SpecError(f"{field}: cannot open {path} ({exc.strerror or type(exc).__name__})") from None
+    note_read(path, field)
     return path
 
 
@@ -837,8 +800,9 @@ class _YamlRefusal(Exception):
         self.line, self.reason = line, reason
 
 
-class _SpecLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing duplicate mapping keys (the last one would win silently)."""
+class _SpecLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+    """PyYAML's safe loader (libyaml's parser where PyYAML was built with it: a tenth of the time),
+    refusing duplicate mapping keys (the last one would win silently)."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -887,18 +851,11 @@ def _expanded_size(root: yaml.Node, limit: int) -> int:
     return done[id(root)]
 
 
-def _read_yaml(path: Path):
-    """The document in ``path``, or SpecError (one line) for a file the spec reader refuses."""
-    try:
-        size = path.stat().st_size
-        if size > MAX_SPEC_BYTES:
-            raise SpecError(f"{path}: the spec file is {size} bytes, at most {MAX_SPEC_BYTES}")
-        with open(path, "rb") as f:
-            raw = f.read(MAX_SPEC_BYTES + 1)
-    except OSError as exc:
-        raise SpecError(f"{path}: cannot read the scene file ({exc.strerror or type(exc).__name__})") from None
-    if len(raw) > MAX_SPEC_BYTES:  # a file that grew, or one whose size the filesystem does not report
-        raise SpecError(f"{path}: the spec file is larger than {MAX_SPEC_BYTES} bytes")
+def _read_yaml(path: Path, raw: bytes | None = None):
+    """The document in ``path`` (or in ``raw``, its bytes already read by
+    :func:`rig.scene_file.read_spec_bytes`), or SpecError (one line) for a file the spec reader refuses."""
+    if raw is None:
+        raw = read_spec_bytes(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -919,6 +876,8 @@ def _read_yaml(path: Path):
     except _YamlRefusal as exc:
         raise SpecError(f"{path}: line {exc.line}: {exc.reason}") from None
     except yaml.YAMLError as exc:
+        if "maximum nesting depth" in str(getattr(exc, "problem", "")):  # libyaml's limit (1000 levels)
+            raise SpecError(f"{path}: the YAML document is nested too deeply") from None
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark else ""
         raise SpecError(f"{path}:{where} not valid YAML ({getattr(exc, 'problem', None) or exc})") from None
@@ -930,13 +889,14 @@ def _read_yaml(path: Path):
         loader.dispose()
 
 
-def load_spec(scene: str | Path) -> tuple[SceneSpec, Path]:
+def load_spec(scene: str | Path, raw: bytes | None = None) -> tuple[SceneSpec, Path]:
     """Parse and validate a spec; returns (spec, folder that relative paths resolve against).
+    raw: the file's bytes when already read (the scene cache's lazy spec), else read here.
 
     Raises SpecError with one line naming the file and the field.
     """
     path = resolve_scene_path(scene)
-    data = _read_yaml(path)
+    data = _read_yaml(path, raw)
     if not isinstance(data, dict):
         raise SpecError(f"{path}: a scene spec must be a YAML mapping, got a {type(data).__name__}")
     try:

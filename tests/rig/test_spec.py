@@ -591,7 +591,9 @@ _TYPE_LINE = _MINI_YAML.splitlines().index("    type: lambertian") + 1
     (_bomb() + _MINI_YAML, "refused as an alias bomb"),
     ("loop: &loop [*loop]\n" + _MINI_YAML, "line 1: a recursive alias"),
     (_MINI_YAML + "seed: " + "9" * 5000 + "\n", "not a valid YAML value"),
-    ("a: " + "[" * 600 + "]" * 600 + "\n", "nested too deeply"),
+    ("a: " + "[" * 999 + "]" * 999 + "\n" + _MINI_YAML, "a: Extra inputs"),  # libyaml's deepest: read, then refused
+    ("a: " + "[" * 1500 + "]" * 1500 + "\n", "nested too deeply"),  # beyond libyaml's 1000 levels
+    ("a:\n" + "".join(" " * (i + 1) + f"k{i}:\n" for i in range(1500)) + "\n", "nested too deeply"),
     (_MINI_YAML + "---\n" + _MINI_YAML, "not valid YAML"),
     (_MINI_YAML + "description: !!python/object/apply:os.system [echo]\n", "not valid YAML"),
     (_MINI_YAML + "description: '" + "x" * (4 * 2 ** 20) + "'\n", "bytes, at most 4194304"),
