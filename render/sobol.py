@@ -150,8 +150,20 @@ def direction_numbers(dims: int = 2) -> np.ndarray:
     return (v << (31 - np.arange(32))).astype(np.uint32)
 
 
-#: (2, 32) uint32 direction numbers of Sobol dimensions 0 and 1 (the compiled kernels read the same table)
-DIRECTIONS = direction_numbers(2)
+def _first_two_dimensions() -> np.ndarray:
+    """direction_numbers(2) without reading scipy's table (start-up): dimension 0 is van der
+    Corput's, dimension 1's polynomial is x + 1 with m_1 = 1, so m_j = m_(j-1) XOR 2 m_(j-1)."""
+    m = np.zeros((2, 32), np.int64)
+    m[0] = 1
+    m[1, 0] = 1
+    for j in range(1, 32):
+        m[1, j] = m[1, j - 1] ^ (m[1, j - 1] << 1)
+    return (m << (31 - np.arange(32))).astype(np.uint32)
+
+
+#: (2, 32) uint32 direction numbers of Sobol dimensions 0 and 1 (the compiled kernels read the same
+#: table; tests/render/test_sobol.py checks it against scipy's Joe-Kuo file)
+DIRECTIONS = _first_two_dimensions()
 
 #: position in a bounce's 8 dimensions (2 + 8 depth + j, render.integrators.path_kernels.shade_bounce)
 #: -> component in its group: the light point (j = 1, 2) and the BSDF direction (j = 4, 5) are 2-D
