@@ -14,9 +14,12 @@ install: $(STAMP) $(CONFORMANCE)
 
 # the renderers' numba kernels compiled ahead of first use (once per source tree: a marker in the
 # cache folder, keyed by render/'s sources, makes later runs a no-op), then the path tracer's kernels
-# as an extension that imports without numba (render/path_aot_build.py; a failed build keeps the JIT)
+# as an extension that imports without numba (render/path_aot_build.py; a failed build keeps the JIT);
+# then our modules' bytecode, as pip writes it for an installed package (an editable install does
+# not, and with PYTHONDONTWRITEBYTECODE set every command would compile them again: ~0.1 s a run)
 setup: install
 	$(BIN)/python -m pipeline.warm_kernels
+	$(BIN)/python -m compileall -q -j 0 pipeline rig recon render bench > /dev/null
 
 $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	./scripts/install-system-deps.sh
