@@ -32,7 +32,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._kernel_cache import skip_numba_blas_probe
-from ..sobol import DIRECTIONS, REPLICATES
+from ..sobol import REPLICATES
 # the numba-free definitions, re-exported (render.path_aot's processes import them without numba)
 from .path_types import (LAMBERT, MIRROR, DIELECTRIC, EMISSIVE, POINT, SPOT, DIRECTIONAL, STRAT_MIS,
                          STRAT_LIGHT, STRAT_BSDF, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, F_DELTA, F_AFTER_DIFF,
@@ -47,25 +47,11 @@ __all__ = ["KernelScene", "kernel_scene", "sample_camera_rays", "shade_bounce", 
 
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
-_SOBOL_V1 = DIRECTIONS[1].astype(np.uint64)  # (32,) Sobol dimension 1 (a global, frozen into the compiled code)
 
 
-def _v1_reversed_byte_table() -> np.ndarray:
-    """(4, 256) uint64: [b, x] = the XOR over the set bits t of x of reverse32(v1[8 b + t]), so
-    reverse32(dimension 1 at index j) is the XOR of four lookups, one per byte of j."""
-    rev = np.array([int(f"{int(v):032b}"[::-1], 2) for v in DIRECTIONS[1]], np.uint64)
-    table = np.zeros((4, 256), np.uint64)
-    for b in range(4):
-        for x in range(1, 256):
-            low = x & -x
-            table[b, x] = table[b, x ^ low] ^ rev[8 * b + low.bit_length() - 1]
-    return table
-
-
-_SOBOL_V1_REV_BYTES = _v1_reversed_byte_table()
 _MASK32 = np.uint64(0xFFFFFFFF)
 _HI32 = np.uint64(0xFFFFFFFF00000000)
-_U0, _U1, _U2, _U4, _U8, _U16, _U24, _U32, _U255 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 24, 32, 255))
+_U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
 _INV_2_32 = 1.0 / 4294967296.0
 _ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
 
@@ -178,13 +164,25 @@ def _scrambled_dim0(j, h):
 
 
 @njit(inline="always", **_JIT)
+def _v1_reversed(j):
+    """reverse32 of Sobol dimension 1 at index j < 2^32 (the XOR of the direction numbers
+    DIRECTIONS[1] over j's set bits). Dimension 1's generator is Pascal's matrix mod 2: by
+    Lucas's theorem, bit i of the reversed value is the XOR of j's bits at the positions k whose
+    binary digits include i's (k & i == i), a superset sum over the five bits of the position,
+    one shift-mask-XOR per bit. It replaces four lookups in a byte table, which the block passes
+    vectorized into gathers (slow on this machine: microcode-mitigated vpgatherqq)."""
+    v = j ^ ((j >> _U1) & np.uint64(0x55555555))
+    v = v ^ ((v >> _U2) & np.uint64(0x33333333))
+    v = v ^ ((v >> _U4) & np.uint64(0x0F0F0F0F))
+    v = v ^ ((v >> _U8) & np.uint64(0x00FF00FF))
+    return v ^ ((v >> _U16) & np.uint64(0x0000FFFF))
+
+
+@njit(inline="always", **_JIT)
 def _scrambled_dim1(j, h):
     """Owen-scrambled Sobol dimension 1 at index j: _nested(v, h) ^ (h >> 32) with v the XOR of
-    the direction numbers over j's set bits, read bit-reversed a byte of j at a time from
-    _SOBOL_V1_REV_BYTES (four lookups instead of a loop over the bits)."""
-    rv = (_SOBOL_V1_REV_BYTES[0, j & _U255] ^ _SOBOL_V1_REV_BYTES[1, (j >> _U8) & _U255]
-          ^ _SOBOL_V1_REV_BYTES[2, (j >> _U16) & _U255] ^ _SOBOL_V1_REV_BYTES[3, (j >> _U24) & _U255])
-    return _reverse32(_laine_karras(rv, h)) ^ (h >> _U32)
+    the direction numbers over j's set bits, computed bit-reversed by :func:`_v1_reversed`."""
+    return _reverse32(_laine_karras(_v1_reversed(j), h)) ^ (h >> _U32)
 
 
 @njit(inline="always", **_JIT)
