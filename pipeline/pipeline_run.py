@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from rig.build import RigScene
+from rig.rig_scene import RigScene
 
 from .artifacts import BadInput, stage_dir
 from .distributed import ClusterConfig, engine

@@ -39,7 +39,7 @@ from render.integrators.settings import SAMPLER_NAMES
 from render.sobol import replicates_for
 from render.film import Film, merge_stats
 from render.image_io import write_exr, write_preview
-from rig.build import RigScene
+from rig.rig_scene import RigScene
 
 from ..artifacts import BadInput, Manifest, atomic_stage
 from ..distributed import ClusterConfig, engine, worker_cache

@@ -7,6 +7,8 @@ processes through ``sys.modules`` (timing is the benchmark's: bench/bench_startu
   importing ``render.integrators`` imports no integrator module (the registry is lazy) and the
   render imports only the one it uses.
 * ``lumigraph --help`` imports none of rig, recon or numba.
+* a scene the scene cache holds (rig/scene_cache.py) renders without pydantic, YAML or the
+  schema (rig.spec, rig.build), to the same bytes as with the cache off.
 """
 from __future__ import annotations
 
@@ -42,9 +44,9 @@ print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
 """
 
 
-def _run(script: str, *args: str) -> dict:
+def _run(script: str, *args: str, **env: str) -> dict:
     proc = subprocess.run([sys.executable, "-c", script, *args], cwd=ROOT, capture_output=True, text=True,
-                          env={**os.environ, "PYOPENGL_PLATFORM": "egl"}, timeout=600)
+                          env={**os.environ, "PYOPENGL_PLATFORM": "egl", **env}, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -64,3 +66,18 @@ def test_help_imports_no_stage():
     out = _run(_HELP)
     assert out["code"] == 0
     assert sorted(m for m in out["modules"] if m.split(".")[0] in ("rig", "recon", "numba", "torch")) == []
+
+
+def test_a_cached_scene_renders_without_the_schema_to_the_same_bytes(tmp_path):
+    cache = {"LUMIGRAPH_CACHE_DIR": str(tmp_path / "cache")}
+    schema = ("pydantic", "yaml", "rig.spec", "rig.build")
+    runs = {}
+    for name, env in (("miss", cache), ("hit", cache), ("off", {**cache, "LUMIGRAPH_SCENE_CACHE": "0"})):
+        out = _run(_REFERENCE, str(tmp_path / name), **env)
+        assert out["code"] == 0
+        runs[name] = sorted(m for m in schema if m in set(out["modules"]))
+    assert runs == {"miss": sorted(schema), "hit": [], "off": sorted(schema)}
+    for folder in ("linear", "variance"):
+        hit = (tmp_path / "hit" / folder / "cornell_camera.exr").read_bytes()
+        assert hit == (tmp_path / "off" / folder / "cornell_camera.exr").read_bytes()
+        assert hit == (tmp_path / "miss" / folder / "cornell_camera.exr").read_bytes()
