@@ -216,12 +216,9 @@ class Manifest:
         folder = Path(folder)
         outputs = {str(p.relative_to(folder)): sha256_file(p) for p in sorted(folder.rglob("*"))
                    if p.is_file() and p.name != MANIFEST}
-        from importlib.metadata import PackageNotFoundError, version
-        try:
-            ver = version("lumigraph")
-        except PackageNotFoundError:
-            ver = "unknown"
-        data = {"stage": self.stage, "lumigraph": ver, "params": self.params, "inputs": self.inputs,
+        from . import __version__
+
+        data = {"stage": self.stage, "lumigraph": __version__, "params": self.params, "inputs": self.inputs,
                 "outputs": outputs, "wall_time_s": round(time.time() - self.started, 3),
                 "metrics": self.metrics}
         write_json(folder / MANIFEST, data)

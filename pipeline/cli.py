@@ -23,12 +23,9 @@ WORKERS = typer.Option(None, help="local Dask workers (default: cores/2, in proc
 
 
 def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
+    from . import __version__
 
-    try:
-        return version("lumigraph")
-    except PackageNotFoundError:
-        return "unknown"
+    return __version__
 
 
 def _show_version(value: bool) -> None:
