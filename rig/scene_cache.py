@@ -94,7 +94,7 @@ def _read(entry: Path) -> RigScene | None:
 
 
 def _write(folder: Path, entry: Path, rig: RigScene, reads: list[tuple[Path, str]]) -> None:
-    stamps = [(str(p), _stamp(p)) for p, _ in reads]
+    stamps = [(str(p.resolve()), _stamp(p)) for p, _ in reads]  # absolute: a hit may come from another folder
     if any(s is None for _, s in stamps):
         return
     data = pickle.dumps({"format": _FORMAT, "reads": stamps, "rig": rig}, protocol=pickle.HIGHEST_PROTOCOL)
@@ -127,7 +127,8 @@ def load_scene(scene: str | Path) -> RigScene:
 
         return load_uncached(scene)
     raw = read_spec_bytes(path)
-    entry = folder / f"{_key(path.resolve(), raw)}.pkl"
+    resolved = path.resolve()  # the entry's spec source: a hit may come from another working folder
+    entry = folder / f"{_key(resolved, raw)}.pkl"
     rig = _read(entry) if entry.is_file() else None
     if rig is not None:
         return rig
@@ -141,7 +142,7 @@ def load_scene(scene: str | Path) -> RigScene:
         except SpecError as exc:  # name the file as load_spec's errors do (rig.build.load_scene)
             raise SpecError(f"{path}: {exc}") from None
     if not any(field.endswith("mesh.file") for _, field in reads):
-        cached = RigScene(None, rig.scene, rig.cameras, rig.targets, spec_source=(path, raw))
+        cached = RigScene(None, rig.scene, rig.cameras, rig.targets, spec_source=(resolved, raw))
         try:
             _write(folder, entry, cached, reads)
         except OSError:  # a full disk or a read-only cache costs the next run time, nothing else

@@ -197,3 +197,16 @@ def test_the_least_recently_used_entries_go_first(cache, tmp_path, monkeypatch):
     kept = {e.name for e in _entries(cache)}
     scene_cache.load_scene(paths[0])
     assert {e.name for e in _entries(cache)} == kept
+
+
+def test_a_hit_from_another_working_folder_reads_its_own_spec(cache, tmp_path, monkeypatch):
+    path = _textured(tmp_path / "scene")
+    monkeypatch.chdir(path.parent)
+    scene_cache.load_scene("textured.yaml")  # a relative name: the entry must not keep it
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "textured.yaml").write_text("name: a_decoy\n")
+    monkeypatch.chdir(elsewhere)
+    hit = scene_cache.load_scene(path)
+    assert hit._spec is None and hit.spec.name == "textured"
+    _assert_same_scene(hit, load_uncached(path))
