@@ -85,6 +85,20 @@ def _borrow(typingctx, arr):
     return arr(arr), codegen
 
 
+@intrinsic
+def _sqrt(typingctx, x):
+    """math.sqrt of a float64 as LLVM's llvm.sqrt (the same correctly rounded square root):
+    numba lowers math.sqrt to a call of libm's sqrt (for errno), and a loop holding a call is
+    never vectorized."""
+    if x != types.float64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.call(builder.module.declare_intrinsic("llvm.sqrt", [args[0].type]), args)
+
+    return types.float64(types.float64), codegen
+
+
 # ------------------------------------------------------------------ RNG (render.sampling's hash)
 @njit(inline="always", **_JIT)
 def _mix64(x):
@@ -328,13 +342,39 @@ def _bounce_numbers(sampler, keys, i0, i1, base, roulette, U):
         U[3, k], U[4, k], U[6, k] = r * c, r * sn, math.sqrt(max(0.0, 1.0 - u4))
 
 
-@njit(**_JIT)
-def _light_samples(sampler, cdf, area, n_area, floor, ids, tris, prim, hu, hv, i0, n, U, K, A):
-    """The next-event light samples of paths i0 .. i0 + n - 1 from their numbers U
-    (:func:`_bounce_numbers`): K[k] the light picked, A[:, k] the area entry's sample from the
-    hit point (valid, wi (3), dist, Li (3), pdf of :func:`_sample_area`; garbage for misses and
-    delta lights, which :func:`_next_event` does not read). The pick is a scalar loop (its
-    search has a data-dependent length); the sampling is a branch-free one, vectorized. The
+# rows of a block's scratch W (row r of path k at W[r * _BLOCK + k]: constant row distances, so
+# the vectorized passes need no runtime alias checks between rows)
+_W_P, _W_NG, _W_D = 0, 3, 6  # hit point, geometric normal, traced direction (3 each; :func:`_block_geometry`)
+_W_OK, _W_L, _W_DIST, _W_LE, _W_LPDF, _W_LN = 9, 10, 13, 14, 17, 18  # light sample (:func:`_light_samples`)
+_W_EPS, _W_COSI, _W_S = 21, 22, 23  # offset, cos at the vertex, contribution scale (:func:`_block_vertices`)
+_W_SO, _W_SD, _W_ST = 24, 27, 30  # shadow ray origin (3), direction (3), tmax
+_W_WI, _W_SPDF, _W_COSS, _W_NO = 31, 34, 35, 36  # BSDF direction (3), its pdf and cosine, next origin (3)
+_W_ROWS = 39
+
+
+@njit(inline="always", **_JIT)
+def _block_geometry(ids, tris, prim, hu, hv, d32, i0, n, W):
+    """The hit point, geometric normal and traced direction (float64 of the float32 one) of paths
+    i0 .. i0 + n - 1 into W (garbage for misses, never read): a scalar pass (the rows are picked
+    by data, and gathers are slow here), so the next passes read them at constant distances."""
+    for k in range(n):
+        i = i0 + k
+        t = ids[max(prim[i], 0)]
+        px, py, pz = _hit_point(tris, t, np.float64(hu[i]), np.float64(hv[i]))
+        W[(_W_P + 0) * _BLOCK + k], W[(_W_P + 1) * _BLOCK + k], W[(_W_P + 2) * _BLOCK + k] = px, py, pz
+        W[(_W_NG + 0) * _BLOCK + k], W[(_W_NG + 1) * _BLOCK + k], W[(_W_NG + 2) * _BLOCK + k] = tris[t, 9], tris[t, 10], tris[t, 11]
+        W[(_W_D + 0) * _BLOCK + k] = np.float64(d32[i, 0])
+        W[(_W_D + 1) * _BLOCK + k] = np.float64(d32[i, 1])
+        W[(_W_D + 2) * _BLOCK + k] = np.float64(d32[i, 2])
+
+
+@njit(inline="always", **_JIT)
+def _light_samples(sampler, cdf, area, n_area, floor, n, U, K, W):
+    """The next-event light samples of a block's paths from their numbers U
+    (:func:`_bounce_numbers`) and hit points (:func:`_block_geometry`): K[k] the light picked,
+    W's light rows the area entry's sample from the hit point (valid, wi (3), dist, Li (3), pdf
+    of :func:`_sample_area`, and the light's normal; garbage for misses and delta lights, which
+    are not read). The pick is a scalar loop (its search has a data-dependent length). The
     Sobol sampler picks with dimension base + 1 and reuses it, rescaled within the picked
     light's CDF interval, as the point's first coordinate: uniform again, so each light's
     points keep the pair's stratification (pbrt's remapped u)."""
@@ -346,21 +386,79 @@ def _light_samples(sampler, cdf, area, n_area, floor, ids, tris, prim, hu, hv, i
             lo = cdf[kk - 1] if kk > 0 else 0.0
             width = cdf[kk] - lo
             u1 = min((ua * total - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
-            A[0, k] = max(u1, 0.0)
+            W[_W_OK * _BLOCK + k] = max(u1, 0.0)
         else:
             kk = _pick(cdf, U[0, k])
-            A[0, k] = U[1, k]
+            W[_W_OK * _BLOCK + k] = U[1, k]
         K[k] = kk
     last = max(n_area - 1, 0)
     for k in range(n):
-        i = i0 + k
-        pr = prim[i]
-        t = ids[max(pr, 0)]
-        px, py, pz = _hit_point(tris, t, np.float64(hu[i]), np.float64(hv[i]))
-        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, min(K[k], last), floor, px, py, pz, A[0, k], U[2, k])
-        A[0, k] = 1.0 if ok else 0.0
-        A[1, k], A[2, k], A[3, k], A[4, k] = lx, ly, lz, ldist
-        A[5, k], A[6, k], A[7, k], A[8, k] = L0, L1, L2, lpdf
+        kk = min(K[k], last)
+        px, py, pz = W[(_W_P + 0) * _BLOCK + k], W[(_W_P + 1) * _BLOCK + k], W[(_W_P + 2) * _BLOCK + k]
+        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, kk, floor, px, py, pz, W[_W_OK * _BLOCK + k], U[2, k])
+        W[_W_OK * _BLOCK + k] = 1.0 if ok else 0.0
+        W[(_W_L + 0) * _BLOCK + k], W[(_W_L + 1) * _BLOCK + k], W[(_W_L + 2) * _BLOCK + k] = lx, ly, lz
+        W[_W_DIST * _BLOCK + k] = ldist
+        W[(_W_LE + 0) * _BLOCK + k], W[(_W_LE + 1) * _BLOCK + k], W[(_W_LE + 2) * _BLOCK + k] = L0, L1, L2
+        W[_W_LPDF * _BLOCK + k] = lpdf
+        W[(_W_LN + 0) * _BLOCK + k], W[(_W_LN + 1) * _BLOCK + k], W[(_W_LN + 2) * _BLOCK + k] = area[kk, 9], area[kk, 10], area[kk, 11]
+
+
+@njit(inline="always", **_JIT)
+def _block_vertices(n, U, W, extent, nee, mis, mis_exponent):
+    """What a Lambertian vertex computes from its hit and its numbers, for a block's paths at
+    once (W's rows from :func:`_block_geometry`, :func:`_light_samples`; garbage for other hits,
+    never read): the offset eps; when ``nee``, the area light sample's cosine at the vertex, its
+    contribution scale (1 / pi) cos w / pdf (w the MIS weight when ``mis``) and its shadow ray
+    (:func:`_queue_shadow_to`: origin, unit direction, tmax); the cosine-weighted BSDF direction
+    (:func:`_sample_cosine`: direction, pdf, cosine) and the next ray's origin
+    (:func:`_queue_ray`). The same expressions as the scalar helpers, as selects: a branch-free
+    loop over constant-distance rows, which LLVM vectorizes (divisions and square roots four
+    at a time), so the same bits."""
+    for k in range(n):
+        px, py, pz = W[(_W_P + 0) * _BLOCK + k], W[(_W_P + 1) * _BLOCK + k], W[(_W_P + 2) * _BLOCK + k]
+        ngx, ngy, ngz = W[(_W_NG + 0) * _BLOCK + k], W[(_W_NG + 1) * _BLOCK + k], W[(_W_NG + 2) * _BLOCK + k]
+        dx, dy, dz = W[(_W_D + 0) * _BLOCK + k], W[(_W_D + 1) * _BLOCK + k], W[(_W_D + 2) * _BLOCK + k]
+        cos_o = -(dx * ngx + dy * ngy + dz * ngz)
+        flip = cos_o < 0.0  # _facing_normal of a two-sided (Lambertian) surface
+        nx, ny, nz = (-ngx if flip else ngx), (-ngy if flip else ngy), (-ngz if flip else ngz)
+        eps = _offset(px, py, pz, extent)
+        W[_W_EPS * _BLOCK + k] = eps
+        if nee:
+            lx, ly, lz = W[(_W_L + 0) * _BLOCK + k], W[(_W_L + 1) * _BLOCK + k], W[(_W_L + 2) * _BLOCK + k]
+            ldist, lpdf = W[_W_DIST * _BLOCK + k], W[_W_LPDF * _BLOCK + k]
+            lnx, lny, lnz = W[(_W_LN + 0) * _BLOCK + k], W[(_W_LN + 1) * _BLOCK + k], W[(_W_LN + 2) * _BLOCK + k]
+            cos_i = lx * nx + ly * ny + lz * nz
+            w = 1.0
+            if mis:  # _mis(lpdf, cos_i / pi, mis_exponent) as a select
+                r = min((cos_i * _INV_PI) / lpdf, 1e150)
+                if mis_exponent == 2.0:
+                    r = r * r
+                w = 1.0 / (1.0 + r) if lpdf > 0.0 else 0.0
+            W[_W_COSI * _BLOCK + k] = cos_i
+            W[_W_S * _BLOCK + k] = _INV_PI * cos_i * w / lpdf
+            # _queue_shadow_to for an area light (finite distance)
+            side = eps if lx * ngx + ly * ngy + lz * ngz >= 0.0 else -eps
+            ox, oy, oz = px + side * ngx, py + side * ngy, pz + side * ngz
+            yx, yy, yz = px + ldist * lx, py + ldist * ly, pz + ldist * lz
+            e = _offset(yx, yy, yz, extent)
+            e = -e if lx * lnx + ly * lny + lz * lnz > 0.0 else e
+            yx, yy, yz = yx + e * lnx, yy + e * lny, yz + e * lnz
+            sx, sy, sz = yx - ox, yy - oy, yz - oz
+            r = _sqrt(sx * sx + sy * sy + sz * sz)
+            good = r > 0.0
+            W[(_W_SO + 0) * _BLOCK + k], W[(_W_SO + 1) * _BLOCK + k], W[(_W_SO + 2) * _BLOCK + k] = ox, oy, oz
+            W[(_W_SD + 0) * _BLOCK + k] = sx / r if good else lx
+            W[(_W_SD + 1) * _BLOCK + k] = sy / r if good else ly
+            W[(_W_SD + 2) * _BLOCK + k] = sz / r if good else lz
+            W[_W_ST * _BLOCK + k] = min(r * (1.0 - 1e-4), _TMAX_CAP) if good else 0.0
+        wx, wy, wz, spdf, cos_s = _sample_cosine(U[3, k], U[4, k], U[6, k], nx, ny, nz)
+        W[(_W_WI + 0) * _BLOCK + k], W[(_W_WI + 1) * _BLOCK + k], W[(_W_WI + 2) * _BLOCK + k] = wx, wy, wz
+        W[_W_SPDF * _BLOCK + k], W[_W_COSS * _BLOCK + k] = spdf, cos_s
+        side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps
+        W[(_W_NO + 0) * _BLOCK + k] = px + side * ngx
+        W[(_W_NO + 1) * _BLOCK + k] = py + side * ngy
+        W[(_W_NO + 2) * _BLOCK + k] = pz + side * ngz
 
 
 @njit(**_JIT)
@@ -780,15 +878,18 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
     nl = 0
     U = np.empty((7, _BLOCK))
     K = np.empty(_BLOCK, np.int64)
-    A = np.empty((9, _BLOCK))
+    W = np.empty(_W_ROWS * _BLOCK)
     nee = cfg.nee_any and has_lights
+    mis = cfg.strategy == STRAT_MIS
     for i in range(len(prim)):
         k = i % _BLOCK
-        if k == 0:  # the next block's random numbers, in one vectorized pass
+        if k == 0:  # the next block's random numbers, light samples and Lambertian vertices, in block passes
             i1 = min(i + _BLOCK, len(prim))
             _bounce_numbers(cfg.sampler, keys, i, i1, base, roulette, U)
+            _block_geometry(ids, tris, prim, hu, hv, d32, i, i1 - i, W)
             if nee:
-                _light_samples(cfg.sampler, cdf, area, n_area, floor, ids, tris, prim, hu, hv, i, i1 - i, U, K, A)
+                _light_samples(cfg.sampler, cdf, area, n_area, floor, i1 - i, U, K, W)
+            _block_vertices(i1 - i, U, W, extent, nee, mis, cfg.mis_exponent)
         slot = idx[i]
         fl = flags[i]
         prev_delta = (fl & F_DELTA) != 0
@@ -817,35 +918,55 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         if depth == cfg.max_depth or kind == EMISSIVE or (cfg.direct and after_diff):
             continue
         u, v = np.float64(hu[i]), np.float64(hv[i])
-        px, py, pz = _hit_point(tris, t, u, v)
-        nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
+        px, py, pz = W[(_W_P + 0) * _BLOCK + k], W[(_W_P + 1) * _BLOCK + k], W[(_W_P + 2) * _BLOCK + k]
         key = keys[i]
-        eps = _offset(px, py, pz, extent)
+        eps = W[_W_EPS * _BLOCK + k]
         if kind == LAMBERT:
             a0, a1, a2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             if nee:
-                nq = _next_event(cfg, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor,
-                                 (K[k], A[0, k] > 0.0, A[1, k], A[2, k], A[3, k], A[4, k], A[5, k], A[6, k], A[7, k], A[8, k]),
-                                 (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
-                                 q_o32, q_d32, q_t32, q_idx, q_val, nq, extent)
+                if K[k] < n_area:  # an area light: the sample, its weight and shadow ray are _block_vertices'
+                    if W[_W_OK * _BLOCK + k] > 0.0 and W[_W_COSI * _BLOCK + k] > 0.0 and cfg.nee_area:
+                        q_o32[nq, 0], q_o32[nq, 1], q_o32[nq, 2] = (W[(_W_SO + 0) * _BLOCK + k], W[(_W_SO + 1) * _BLOCK + k],
+                                                                    W[(_W_SO + 2) * _BLOCK + k])
+                        q_d32[nq, 0], q_d32[nq, 1], q_d32[nq, 2] = (W[(_W_SD + 0) * _BLOCK + k], W[(_W_SD + 1) * _BLOCK + k],
+                                                                    W[(_W_SD + 2) * _BLOCK + k])
+                        q_t32[nq] = W[_W_ST * _BLOCK + k]
+                        s = W[_W_S * _BLOCK + k]
+                        q_val[nq, 0] = b0 * a0 * W[(_W_LE + 0) * _BLOCK + k] * s
+                        q_val[nq, 1] = b1 * a1 * W[(_W_LE + 1) * _BLOCK + k] * s
+                        q_val[nq, 2] = b2 * a2 * W[(_W_LE + 2) * _BLOCK + k] * s
+                        q_idx[nq] = slot
+                        nq += 1
+                else:
+                    nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
+                    nq = _next_event(cfg, pmf, area, d_kind, d_pos, d_dir, d_I, d_cos, n_area, floor,
+                                     (K[k], False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                                     (px, py, pz), (nx, ny, nz), (ngx, ngy, ngz), eps, (b0, b1, b2), (a0, a1, a2), slot,
+                                     q_o32, q_d32, q_t32, q_idx, q_val, nq, extent)
             if not cfg.continue_diffuse:
                 continue
-            wx, wy, wz, spdf, cos_s = _sample_cosine(U[3, k], U[4, k], U[6, k], nx, ny, nz)
+            wx, wy, wz = W[(_W_WI + 0) * _BLOCK + k], W[(_W_WI + 1) * _BLOCK + k], W[(_W_WI + 2) * _BLOCK + k]
+            spdf = W[_W_SPDF * _BLOCK + k]
+            ox, oy, oz = W[(_W_NO + 0) * _BLOCK + k], W[(_W_NO + 1) * _BLOCK + k], W[(_W_NO + 2) * _BLOCK + k]
             w0, w1, w2 = a0, a1, a2
-            valid = cos_s > 0.0 and cos_o != 0.0
+            valid = W[_W_COSS * _BLOCK + k] > 0.0 and cos_o != 0.0
             delta = False
             if cfg.direct:  # the path ends here: queue its last BSDF ray
                 if valid and max(max(w0, w1), w2) > 0.0:
-                    _queue_ray(l_o32, l_d32, nl, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz)
+                    l_o32[nl, 0], l_o32[nl, 1], l_o32[nl, 2] = ox, oy, oz
+                    l_d32[nl, 0], l_d32[nl, 1], l_d32[nl, 2] = wx, wy, wz
                     l_beta[nl, 0], l_beta[nl, 1], l_beta[nl, 2] = b0 * w0, b1 * w1, b2 * w2
                     l_pdf[nl] = spdf
                     l_idx[nl] = slot
                     nl += 1
                 continue
         else:
+            nx, ny, nz = _facing_normal(ngx, ngy, ngz, cos_o, kind)
             valid, wx, wy, wz, w0, w1, w2, spdf = _sample_specular(kind, albedo[obj, 0], albedo[obj, 1],
                                                                    albedo[obj, 2], iors[obj], cfg.sampler, key, base,
                                                                    dx, dy, dz, nx, ny, nz)
+            side = eps if wx * ngx + wy * ngy + wz * ngz >= 0.0 else -eps  # _queue_ray's origin
+            ox, oy, oz = px + side * ngx, py + side * ngy, pz + side * ngz
             delta = True
         if not valid:
             continue
@@ -860,7 +981,8 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
         n_idx[nn] = slot
         n_keys[nn] = key
         n_beta[nn, 0], n_beta[nn, 1], n_beta[nn, 2] = b0, b1, b2
-        _queue_ray(n_o32, n_d32, nn, px, py, pz, ngx, ngy, ngz, eps, wx, wy, wz)
+        n_o32[nn, 0], n_o32[nn, 1], n_o32[nn, 2] = ox, oy, oz
+        n_d32[nn, 0], n_d32[nn, 1], n_d32[nn, 2] = wx, wy, wz
         n_pdf[nn] = spdf
         nf = fl & F_AFTER_DIFF
         if kind == LAMBERT:
