@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from PIL import Image
 
+from .scene_file import note_read
 from .spec import MAX_TEXTURE_SIDE, CharucoTexture, ProceduralTexture, SpecError, TextureSpec, resolve_file
 
 if TYPE_CHECKING:  # imported where a board is drawn or noise resized: a scene without those (the
@@ -70,6 +71,7 @@ def load_texture(name: str, spec: TextureSpec, base_dir: Path) -> np.ndarray:
 
         # the schema allows only images bundled with scikit-image (no download, no other callable)
         img = np.asarray(getattr(skimage.data, src.split(":", 1)[1])())
+        note_read(Path(skimage.data.__file__), field)  # the scene cache's stamp: a new scikit-image is a miss
     else:
         img = _read_image(resolve_file(base_dir, src, field), field)
     if img.dtype == bool:

@@ -210,3 +210,18 @@ def test_a_hit_from_another_working_folder_reads_its_own_spec(cache, tmp_path, m
     hit = scene_cache.load_scene(path)
     assert hit._spec is None and hit.spec.name == "textured"
     _assert_same_scene(hit, load_uncached(path))
+
+
+def test_a_bundled_image_is_stamped_by_the_scikit_image_that_gave_it(cache, tmp_path):
+    spec = yaml.safe_load(_textured(tmp_path / "scene").read_text())
+    spec["textures"] = {"t": "skimage:astronaut"}
+    path = tmp_path / "scene" / "bundled.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    scene_cache.load_scene(path)
+    (entry,) = _entries(cache)
+    import pickle
+
+    import skimage.data
+
+    reads = pickle.loads(entry.read_bytes())["reads"]
+    assert [p for p, _ in reads] == [str(Path(skimage.data.__file__).resolve())]
