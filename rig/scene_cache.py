@@ -9,7 +9,8 @@ validated only if read), keyed by
 * the sources of rig/ and render/ (any edit starts new entries), Python's and numpy's versions,
 
 and checked on every hit against the size and modification time of each file the spec names
-(textures, density grids; for an image bundled with scikit-image, its ``skimage.data`` module). A scene that names a mesh file is not cached: trimesh may read files
+(textures, density grids; for an image bundled with scikit-image, its ``skimage.data`` module;
+for a ChArUco board, the ``cv2`` package that drew it). A scene that names a mesh file is not cached: trimesh may read files
 the mesh names in turn (an OBJ's materials), which the key could not see. Only a scene that loaded
 without error is stored, so every refusal of bad input happens as before.
 

@@ -61,7 +61,11 @@ def _procedural(spec: ProceduralTexture) -> np.ndarray:
 def load_texture(name: str, spec: TextureSpec, base_dir: Path) -> np.ndarray:
     """Resolve one texture entry of a spec to (H, W, 3) uint8 sRGB; SpecError on failure."""
     if spec.charuco is not None:
-        return charuco_image(spec.charuco)
+        board = charuco_image(spec.charuco)
+        import cv2
+
+        note_read(Path(cv2.__file__), f"textures.{name}.charuco")  # drawn by this OpenCV: the scene cache's stamp
+        return board
     if spec.procedural is not None:
         return _procedural(spec.procedural)
     src = spec.image.image

@@ -225,3 +225,14 @@ def test_a_bundled_image_is_stamped_by_the_scikit_image_that_gave_it(cache, tmp_
 
     reads = pickle.loads(entry.read_bytes())["reads"]
     assert [p for p, _ in reads] == [str(Path(skimage.data.__file__).resolve())]
+
+
+def test_a_charuco_board_is_stamped_by_the_opencv_that_drew_it(cache):
+    import pickle
+
+    import cv2
+
+    scene_cache.load_scene("turntable")
+    (entry,) = _entries(cache)
+    reads = [p for p, _ in pickle.loads(entry.read_bytes())["reads"]]
+    assert str(Path(cv2.__file__).resolve()) in reads
