@@ -515,27 +515,33 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
             if rep == nrep:
                 rep = _U0
                 q += _U1
-    # the pixel jitter (dimensions 0, 1) in a pass of its own: branch-free, vectorized hashing
+    # the pixel jitter (dimensions 0, 1) in a pass of its own: branch-free, vectorized hashing.
+    # The passes index flat views (jf[2 i + c], df[3 i + c]): with the 2-D arrays' strides
+    # unknown at compile time LLVM assumed jit[i, 1] might be jit[i + 1, 0] and kept them scalar.
+    jf = jit[:n].reshape(2 * n)
     if sampler == SAMPLER_SOBOL:
         for i in range(n):
             ux, uy = _sobol2(keys[i], 0)
-            jit[i, 0] = ux + jit[i, 0]
-            jit[i, 1] = uy + jit[i, 1]
+            jf[2 * i] = ux + jf[2 * i]
+            jf[2 * i + 1] = uy + jf[2 * i + 1]
     else:
         for i in range(n):
             key = keys[i]
-            jit[i, 0] = _uniform(key, 0) + jit[i, 0]
-            jit[i, 1] = _uniform(key, 1) + jit[i, 1]
+            jf[2 * i] = _uniform(key, 0) + jf[2 * i]
+            jf[2 * i + 1] = _uniform(key, 1) + jf[2 * i + 1]
     if pinhole:
+        df, of = d32[:n].reshape(3 * n), o32[:n].reshape(3 * n)
+        r00, r01, r02, r10, r11, r12 = rot[0, 0], rot[0, 1], rot[0, 2], rot[1, 0], rot[1, 1], rot[1, 2]
+        r20, r21, r22, o0, o1, o2 = rot[2, 0], rot[2, 1], rot[2, 2], origin[0], origin[1], origin[2]
         for i in range(n):
-            x = (jit[i, 0] - cam.cx) / cam.fx
-            y = (jit[i, 1] - cam.cy) / cam.fy
-            nrm = math.sqrt(x * x + y * y + 1.0)
+            x = (jf[2 * i] - cam.cx) / cam.fx
+            y = (jf[2 * i + 1] - cam.cy) / cam.fy
+            nrm = _sqrt(x * x + y * y + 1.0)
             x, y, z = x / nrm, y / nrm, 1.0 / nrm
-            for c in range(3):
-                v = rot[c, 0] * x + rot[c, 1] * y + rot[c, 2] * z
-                d32[i, c] = v
-                o32[i, c] = origin[c]
+            df[3 * i] = r00 * x + r01 * y + r02 * z
+            df[3 * i + 1] = r10 * x + r11 * y + r12 * z
+            df[3 * i + 2] = r20 * x + r21 * y + r22 * z
+            of[3 * i], of[3 * i + 1], of[3 * i + 2] = o0, o1, o2
 
 
 # ------------------------------------------------------------------ small helpers
