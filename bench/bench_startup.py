@@ -69,11 +69,10 @@ import json, time
 t0 = time.perf_counter()
 from render.integrators import RenderSettings, prepare, render
 from rig.scene_cache import load_scene
+from pipeline.stages.reference import resize_camera
 t1 = time.perf_counter()
 rig = load_scene("cornell")  # a hit: the bench's runs before filled the scene cache
-cam = rig.cameras["scene"][0]
-from pipeline.stages.reference import resize_camera
-cam = resize_camera(cam, 32, 32)
+cam = resize_camera(rig.cameras["scene"][0], 32, 32)
 t2 = time.perf_counter()
 ps = prepare(rig.scene)
 t3 = time.perf_counter()
