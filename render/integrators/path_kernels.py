@@ -7,6 +7,17 @@ the next rays and the shadow rays straight into the float32 arrays Embree reads.
 rays run inside compiled code and release the GIL, so two render threads overlap (one traces
 while the other shades).
 
+Inside shade_bounce the work that is the same for every hit runs first, in block passes over
+128 paths (:func:`_bounce_numbers`, :func:`_block_geometry`, :func:`_light_samples`,
+:func:`_block_vertices`): branch-free loops over a struct-of-arrays scratch that LLVM vectorizes
+(the random numbers, the light samples, the Lambertian vertex's MIS weight, contribution scale,
+shadow ray and BSDF direction); the per-path loop keeps the control flow, the material lookups,
+the queue writes and the compaction. The passes compute the scalar helpers' expressions in the
+same order (selects for their early returns), so the bytes are those of a one-loop kernel. Two
+things keep LLVM from vectorizing here and are avoided: calls (math.sqrt is a libm call:
+:func:`_sqrt`) and loads from rows picked by data (vector gathers are slow on the machines this
+runs on, so such loads stay in scalar passes that copy what the vector passes read).
+
 The math is the same as the numpy reference implementations, which stay the public, tested
 interfaces for other integrators: warps and the hash RNG of :mod:`render.sampling`, the BSDFs of
 :mod:`render.bsdf`, light sampling of :mod:`render.lights`, texture lookup of
