@@ -33,7 +33,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ._kernel_cache import kernel_cache_dir, sources_digest
+from ._kernel_cache import kernel_cache_dir, render_digest
 
 __all__ = ["KERNELS", "MODULE", "build_key", "extension_dir", "kernels", "jit_kernels", "for_scene", "rays_ok"]
 
@@ -67,7 +67,7 @@ def _cpu() -> str:
 
 def build_key(digest: str | None = None) -> str:
     """16 hex digits over render/'s sources digest, the numpy, numba and Python versions and the CPU."""
-    parts = (digest or sources_digest(), np.__version__, _numba_version(), sys.version, sys.platform, _cpu())
+    parts = (digest or render_digest(), np.__version__, _numba_version(), sys.version, sys.platform, _cpu())
     return hashlib.sha1("\n".join(parts).encode()).hexdigest()[:16]
 
 

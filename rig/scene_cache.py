@@ -62,10 +62,10 @@ def _private(folder: Path) -> bool:
 def _key(path: Path, raw: bytes) -> str:
     import numpy as np
 
-    from render._kernel_cache import sources_digest
+    from render._kernel_cache import render_digest, sources_digest
 
     h = hashlib.sha256()
-    for part in (str(_FORMAT), str(path), hashlib.sha256(raw).hexdigest(), sources_digest(_RIG), sources_digest(),
+    for part in (str(_FORMAT), str(path), hashlib.sha256(raw).hexdigest(), sources_digest(_RIG), render_digest(),
                  sys.version, np.__version__):
         h.update(part.encode("utf-8", "surrogateescape") + b"\0")
     return h.hexdigest()[:32]
