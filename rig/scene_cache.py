@@ -31,7 +31,7 @@ import tempfile
 from pathlib import Path
 
 from .rig_scene import RigScene
-from .scene_file import read_spec_bytes, recording_reads, resolve_scene_path
+from .scene_file import file_stamp, read_spec_bytes, recording_reads, resolve_scene_path
 
 __all__ = ["load_scene", "cache_dir", "MAX_ENTRIES", "MAX_ENTRY_BYTES"]
 
@@ -71,14 +71,6 @@ def _key(path: Path, raw: bytes) -> str:
     return h.hexdigest()[:32]
 
 
-def _stamp(path: Path) -> tuple[int, int] | None:
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return st.st_mtime_ns, st.st_size
-
-
 def _read(entry: Path) -> RigScene | None:
     """The entry's scene if it is whole and every file it read is unchanged, else None."""
     try:
@@ -86,7 +78,7 @@ def _read(entry: Path) -> RigScene | None:
             record = pickle.load(f)
         if record.get("format") != _FORMAT or not isinstance(record.get("rig"), RigScene):
             return None
-        if any(_stamp(Path(p)) != tuple(s) for p, s in record["reads"]):
+        if any(file_stamp(Path(p)) != tuple(s) for p, s in record["reads"]):
             return None
         os.utime(entry)  # least recently used goes first
         return record["rig"]
@@ -94,8 +86,8 @@ def _read(entry: Path) -> RigScene | None:
         return None
 
 
-def _write(folder: Path, entry: Path, rig: RigScene, reads: list[tuple[Path, str]]) -> None:
-    stamps = [(str(p.resolve()), _stamp(p)) for p, _ in reads]  # absolute: a hit may come from another folder
+def _write(folder: Path, entry: Path, rig: RigScene, reads: list[tuple[Path, str, tuple[int, int] | None]]) -> None:
+    stamps = [(str(p.resolve()), stamp) for p, _, stamp in reads]  # absolute: a hit may come from another folder
     if any(s is None for _, s in stamps):
         return
     data = pickle.dumps({"format": _FORMAT, "reads": stamps, "rig": rig}, protocol=pickle.HIGHEST_PROTOCOL)
@@ -142,7 +134,7 @@ def load_scene(scene: str | Path) -> RigScene:
             rig = build_scene(spec, base_dir)
         except SpecError as exc:  # name the file as load_spec's errors do (rig.build.load_scene)
             raise SpecError(f"{path}: {exc}") from None
-    if not any(field.endswith("mesh.file") for _, field in reads):
+    if not any(field.endswith("mesh.file") for _, field, _ in reads):
         cached = RigScene(None, rig.scene, rig.cameras, rig.targets, spec_source=(resolved, raw))
         try:
             _write(folder, entry, cached, reads)

@@ -67,15 +67,27 @@ def read_spec_bytes(path: Path) -> bytes:
     return raw
 
 
-#: the files a scene build read (path, spec field), while :func:`recording_reads` is active
-_reads: ContextVar[list[tuple[Path, str]] | None] = ContextVar("lumigraph_scene_reads", default=None)
+#: the files a scene build read (path, spec field, (mtime_ns, size) or None), while
+#: :func:`recording_reads` is active
+_reads: ContextVar[list[tuple[Path, str, tuple[int, int] | None]] | None] = ContextVar("lumigraph_scene_reads",
+                                                                                      default=None)
+
+
+def file_stamp(path: Path) -> tuple[int, int] | None:
+    """(mtime_ns, size) of ``path``, or None when it cannot be read."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size
 
 
 @contextmanager
 def recording_reads():
     """Collect every file a spec names (:func:`rig.spec.resolve_file`) while the block runs: the
-    scene cache keys an entry by them. Yields the list of (path, field) it fills."""
-    reads: list[tuple[Path, str]] = []
+    scene cache keys an entry by them. Yields the list of (path, field, stamp) it fills, each
+    stamp taken before the file is read (a file edited during the build then misses next time)."""
+    reads: list[tuple[Path, str, tuple[int, int] | None]] = []
     token = _reads.set(reads)
     try:
         yield reads
@@ -87,4 +99,4 @@ def note_read(path: Path, field: str) -> None:
     """Record that a spec's ``field`` named ``path`` (a no-op unless :func:`recording_reads` is active)."""
     reads = _reads.get()
     if reads is not None:
-        reads.append((path, field))
+        reads.append((path, field, file_stamp(path)))

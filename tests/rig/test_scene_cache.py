@@ -236,3 +236,24 @@ def test_a_charuco_board_is_stamped_by_the_opencv_that_drew_it(cache):
     (entry,) = _entries(cache)
     reads = [p for p, _ in pickle.loads(entry.read_bytes())["reads"]]
     assert str(Path(cv2.__file__).resolve()) in reads
+
+
+def test_a_file_edited_while_the_scene_builds_is_a_miss_next_time(cache, tmp_path, monkeypatch):
+    """The stamp is taken when the spec names the file, before it is read: an edit in between
+    leaves an entry whose stamp no longer matches, never a stale hit."""
+    import rig.textures
+
+    path = _textured(tmp_path / "scene")
+    read = rig.textures._read_image
+
+    def edited_then_read(p, field):
+        Image.new("RGB", (8, 9), (1, 2, 3)).save(p)  # another size: another stamp
+        return read(p, field)
+
+    monkeypatch.setattr(rig.textures, "_read_image", edited_then_read)
+    scene_cache.load_scene(path)
+    monkeypatch.setattr(rig.textures, "_read_image", read)
+    again = scene_cache.load_scene(path)
+    assert again._spec is not None  # rebuilt (a hit's spec is not validated until read)
+    _assert_same_scene(again, load_uncached(path))
+    assert scene_cache.load_scene(path)._spec is None  # and stored again with the right stamp
