@@ -385,7 +385,7 @@ def test_display_loss_encoding_is_srgb_with_finite_gradients():
     y = srgb_encode(x)
     ref = linear_to_srgb(x.detach().numpy()[:-1])
     assert np.allclose(y.detach().numpy()[:-1], ref, rtol=0, atol=1e-12)
-    assert float(y[-1]) == pytest.approx(1.055 * 2.0 ** (1 / 2.4) - 0.055)  # unclipped above 1
+    assert float(y[-1].detach()) == pytest.approx(1.055 * 2.0 ** (1 / 2.4) - 0.055)  # unclipped above 1
     y.sum().backward()
     g = x.grad.numpy()
     assert np.all(np.isfinite(g)) and g[0] == pytest.approx(12.92)
