@@ -15,7 +15,7 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   vertex 3 / 5 / off, max_depth 8 / unlimited (64), MIS power / balance, sampler Sobol /
   independent, and Mitsuba's path (its own roulette from depth 5, unlimited depth) with its
   independent and multijitter samplers; ``efficiency`` = 1 / (MSE x seconds).
-* ``seed_spread`` (with the variants): ours (max_depth 8, 64, and Mitsuba's roulette policy) and
+* ``seed_spread`` (with the variants): ours (max_depth 8, 64, roulette from vertex 4 and Mitsuba's policy) and
   Mitsuba's two samplers at SEED_SPREAD_SPP in this process, SEED_SPREAD_SEEDS seeds each: per-pixel
   variance from the spread between seeds (no reference enters), render seconds, and variance x
   seconds against multijitter's (the equal-time MSE ratio without start-up).
@@ -234,6 +234,7 @@ def _seed_spread(scene, cam, ps, mi, scene_json: Path, spp: int = SEED_SPREAD_SP
     d["sensor"]["to_world"] = mi.ScalarTransform4f().look_at(**d["sensor"].pop("look_at"))
     ours = {"ours sobol-blocks, max_depth 8 (default)": {},
             "ours sobol-blocks, max_depth 64": {"max_depth": 64},
+            "ours sobol-blocks, roulette from vertex 4, max_depth 64": {"max_depth": 64, "rr_depth": 4},
             "ours sobol-blocks, roulette from vertex 5, max_depth 64 (Mitsuba's policy)": {"max_depth": 64, "rr_depth": 5}}
     runs: dict[str, tuple[list, list]] = {name: ([], []) for name in [*ours, "mitsuba multijitter", "mitsuba independent"]}
     for seed in range(11, 11 + seeds):
