@@ -228,9 +228,10 @@ def build_scene(spec: SceneSpec, base_dir: Path) -> RigScene:
     return RigScene(spec, scene, cameras, targets)
 
 
-def load_scene(scene: str | Path) -> RigScene:
-    """Load a built-in scene name or a YAML path into a :class:`RigScene` (SpecError on bad input)."""
-    spec, base_dir = load_spec(scene)
+def load_scene(scene: str | Path, raw: bytes | None = None) -> RigScene:
+    """Load a built-in scene name or a YAML path into a :class:`RigScene` (SpecError on bad input).
+    raw: the file's bytes when already read (:mod:`rig.scene_cache`)."""
+    spec, base_dir = load_spec(scene, raw)
     try:
         return build_scene(spec, base_dir)
     except SpecError as exc:  # name the file as load_spec's errors do

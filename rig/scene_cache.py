@@ -125,15 +125,10 @@ def load_scene(scene: str | Path) -> RigScene:
     rig = _read(entry) if entry.is_file() else None
     if rig is not None:
         return rig
-    from .build import build_scene
-    from .spec import SpecError, load_spec
+    from .build import load_scene as load_uncached
 
     with recording_reads() as reads:
-        spec, base_dir = load_spec(path, raw)
-        try:
-            rig = build_scene(spec, base_dir)
-        except SpecError as exc:  # name the file as load_spec's errors do (rig.build.load_scene)
-            raise SpecError(f"{path}: {exc}") from None
+        rig = load_uncached(path, raw)
     if not any(field.endswith("mesh.file") for _, field, _ in reads):
         cached = RigScene(None, rig.scene, rig.cameras, rig.targets, spec_source=(resolved, raw))
         try:
