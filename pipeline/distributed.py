@@ -41,7 +41,8 @@ import os
 import threading
 import time
 import uuid
-from collections import OrderedDict
+from collections import OrderedDict, deque
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable, Iterator, Sequence
@@ -194,19 +195,48 @@ class LocalEngine:
 
     def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable | None,
                     shared: Sequence[Shared] = (), on_unit: Callable[[], None] | None = None,
-                    on_group: Callable[[int, Any], None] | None = None, name: str = "unit") -> None:
+                    on_group: Callable[[int, Any], None] | None = None, name: str = "unit",
+                    concurrent: int = 1) -> None:
         """For each group g: ``on_group(g, finish(left fold of work(*shared values, *unit)))``;
-        ``on_unit()`` after every unit. Arguments as :meth:`DaskEngine.fold_groups`."""
+        ``on_unit()`` after every unit. Arguments as :meth:`DaskEngine.fold_groups`, and
+        ``concurrent``: units run on that many threads at once (for work that releases the GIL
+        and is thread-safe), at most that many ahead of the fold, which still takes them in unit
+        order: the same result as one at a time."""
         args = [s.value for s in shared]
-        for g, units in enumerate(groups):
-            acc = None
+        pool = ThreadPoolExecutor(concurrent) if concurrent > 1 else None
+        try:
+            for g, units in enumerate(groups):
+                acc = None
+                for part in self._in_order(pool, concurrent, work, args, units):
+                    acc = part if acc is None else fold(acc, part)
+                    if on_unit:
+                        on_unit()
+                if on_group:
+                    on_group(g, acc if finish is None else finish(acc))
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+
+    @staticmethod
+    def _in_order(pool, ahead: int, work: Callable, args: list, units: Sequence[tuple]):
+        """work(*args, *unit) for each unit, yielded in order; on ``pool`` with at most ``ahead``
+        units submitted beyond the one yielded next (a bounded number of results in memory)."""
+        if pool is None:
             for unit in units:
-                part = work(*args, *unit)
-                acc = part if acc is None else fold(acc, part)
-                if on_unit:
-                    on_unit()
-            if on_group:
-                on_group(g, acc if finish is None else finish(acc))
+                yield work(*args, *unit)
+            return
+        window = deque()
+        it = iter(units)
+        for unit in it:
+            window.append(pool.submit(work, *args, *unit))
+            if len(window) >= ahead:
+                break
+        while window:
+            part = window.popleft().result()
+            nxt = next(it, None)
+            if nxt is not None:
+                window.append(pool.submit(work, *args, *nxt))
+            yield part
 
 
 # --------------------------------------------------------------------------------------------
@@ -270,12 +300,14 @@ class DaskEngine:
 
     def fold_groups(self, work: Callable, groups: Sequence[Sequence[tuple]], fold: Callable, finish: Callable | None,
                     shared: Sequence[Shared] = (), on_unit: Callable[[], None] | None = None,
-                    on_group: Callable[[int, Any], None] | None = None, name: str = "unit") -> None:
+                    on_group: Callable[[int, Any], None] | None = None, name: str = "unit",
+                    concurrent: int = 1) -> None:
         """Submit every unit ``work(*shared, *unit)``, chain ``fold`` over each group's results in
         unit order and ``finish`` the last (None: the group's result is the fold itself, no
         task), all on the workers; call ``on_unit()`` as units finish (any order) and
         ``on_group(g, result)`` as groups finish (any order). Raises the first failed task's
-        exception after cancelling the rest."""
+        exception after cancelling the rest. ``concurrent`` is the in-process engine's (the
+        cluster runs units side by side already)."""
         from distributed import wait
 
         client, run = self.client, uuid.uuid4().hex[:8]

@@ -146,6 +146,24 @@ class Film:
         return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n,
                     self.r1 + other.r1, self.rn + other.rn, self.blocks)
 
+    def merge_in_place(self, other: "Film") -> None:
+        """Add ``other``'s samples to this film: the sums of :meth:`merged`, bit for bit, without
+        new arrays (replicate sums only where ``other`` holds samples: a batch of a few samples
+        fills one or two of the R blocks, and x + 0.0 is x)."""
+        if (self.width, self.height) != (other.width, other.height):
+            raise ValueError("cannot merge films of different sizes")
+        if (self.r1 is None) != (other.r1 is None) or (self.r1 is not None and self.r1.shape != other.r1.shape):
+            raise ValueError("cannot merge films of different samplers (replicate sums on one side only)")
+        if self.blocks != other.blocks:
+            raise ValueError("cannot merge films of different samplers (blocks of one sequence against replicates)")
+        self.s1 += other.s1
+        self.s2 += other.s2
+        self.n += other.n
+        if self.r1 is not None:
+            for r in np.flatnonzero(other.rn):
+                self.r1[r] += other.r1[r]
+            self.rn += other.rn
+
     def mean(self) -> np.ndarray:
         """(H, W, 3) float32 per-pixel mean (0 where a pixel has no samples)."""
         n = np.maximum(self.n, 1)[:, None]

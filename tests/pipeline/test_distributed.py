@@ -183,7 +183,7 @@ def test_float64_moments_bit_identical_to_the_in_process_fold(tiny, cluster):
 
     from render import integrators
     from render.effects import scene_effects
-    from pipeline.stages.reference import fold_batches, render_batch
+    from pipeline.stages.reference import LOCAL_UNITS_AT_ONCE, fold_batches, fold_batches_in_place, render_batch
 
     rig, _, _ = tiny
     cluster.ensure(2)
@@ -192,19 +192,24 @@ def test_float64_moments_bit_identical_to_the_in_process_fold(tiny, cluster):
     cams = [c for c in rig.cameras["train"] + rig.cameras["test"]]
     batches = [(a, min(a + 8, SPP)) for a in range(0, SPP, 8)]
     films = {}
-    for config in (None, ClusterConfig(cluster.address)):
+    # the in-process engine one unit at a time, and as the reference stage runs it: units side by
+    # side, folded in place (render.film.Film.merge_in_place)
+    for name, config, fold, concurrent in (("local", None, fold_batches, 1),
+                                           ("local concurrent", None, fold_batches_in_place, LOCAL_UNITS_AT_ONCE),
+                                           ("dask", ClusterConfig(cluster.address), fold_batches, 1)):
         with engine(config, quiet=True) as eng:
             scene = eng.share(rig.scene)
             units = [[(scene.key, cam, settings, rng, effects) for rng in batches] for cam in cams]
             got = {}
-            eng.fold_groups(render_batch, units, fold_batches, operator.itemgetter(0), shared=[scene],
-                            on_group=lambda g, film: got.__setitem__(g, film))
-            films[type(eng).__name__] = got
-    local, dask = films["LocalEngine"], films["DaskEngine"]
-    assert sorted(local) == sorted(dask) == list(range(len(cams)))
+            eng.fold_groups(render_batch, units, fold, operator.itemgetter(0), shared=[scene],
+                            on_group=lambda g, film: got.__setitem__(g, film), concurrent=concurrent)
+            films[name] = got
+    local, dask = films["local"], films["dask"]
+    assert sorted(local) == sorted(dask) == sorted(films["local concurrent"]) == list(range(len(cams)))
     for g in local:
         for field in ("s1", "s2", "n"):
             assert getattr(local[g], field).tobytes() == getattr(dask[g], field).tobytes()
+            assert getattr(films["local concurrent"][g], field).tobytes() == getattr(dask[g], field).tobytes()
     parts = [render_batch(rig.scene, "reversed", cams[0], settings, rng, effects) for rng in batches]
     rev = reduce(fold_batches, parts[::-1])[0]
     assert (rev.s1 != local[0].s1).any() and rev.s1.tobytes() != local[0].s1.tobytes()
@@ -282,3 +287,28 @@ def test_no_worker_left_stops_the_stage_instead_of_hanging(tiny, cluster):
                       quiet=True, cluster=ClusterConfig(cluster.address, no_workers_timeout_s=2, poll_s=0.5))
     assert time.monotonic() - t0 < 30
     assert not out.exists() and not list(root.glob(".no-workers.partial-*"))
+
+
+def test_local_engine_side_by_side_units_fold_in_order_with_a_bounded_window():
+    """LocalEngine.fold_groups(concurrent=2): units run on two threads at once (observed: two in
+    flight), at most ``concurrent`` ahead of the fold (never more alive than that plus the one
+    being folded), and the fold sees them in unit order even when later units finish first
+    (their sleeps decrease)."""
+    lock = threading.Lock()
+    live, peak = [0], [0]
+
+    def work(base, i, delay):
+        with lock:
+            live[0] += 1
+            peak[0] = max(peak[0], live[0])
+        time.sleep(delay)
+        with lock:
+            live[0] -= 1
+        return [base + i]
+
+    groups = [[(i, 0.02 * (6 - i)) for i in range(6)], [(10 + i, 0.005) for i in range(3)]]
+    out = {}
+    LocalEngine().fold_groups(work, groups, operator.add, None, shared=[LocalEngine().share(100)],
+                              on_group=out.__setitem__, concurrent=2)
+    assert out == {0: [100 + i for i in range(6)], 1: [110, 111, 112]}
+    assert peak[0] == 2

@@ -40,3 +40,28 @@ def test_merge_is_the_film_of_the_union_and_guards_small_counts():
         merge_results(ra, RenderResult.from_film(b, (2, 5), "path", {}))
     with pytest.raises(ValueError):
         merge_results(ra, RenderResult.from_film(b, (3, 7), "direct", {}))
+
+
+def test_merge_in_place_is_merged_bit_for_bit():
+    """Film.merge_in_place (the in-process fold of the reference stage) gives merged()'s sums to
+    the bit, adding replicate sums only where the incoming film holds samples; films of
+    different samplers are refused as by merged()."""
+    rng = np.random.default_rng(4)
+
+    def film(rn):
+        f = Film(5, 3)
+        f.s1, f.s2, f.n = rng.random((15, 3)), rng.random((15, 3)), rng.integers(0, 9, 15)
+        f.r1 = np.where(np.asarray(rn)[:, None, None] > 0, rng.random((4, 15, 3)), 0.0)
+        f.rn = np.asarray(rn, np.int64)
+        f.blocks = True
+        return f
+
+    a, b = film([3, 2, 0, 0]), film([0, 1, 4, 0])
+    want = a.merged(b)
+    a.merge_in_place(b)
+    for field in ("s1", "s2", "n", "r1", "rn"):
+        assert getattr(a, field).tobytes() == getattr(want, field).tobytes(), field
+    other = film([1, 0, 0, 0])
+    other.blocks = False
+    with pytest.raises(ValueError, match="samplers"):
+        a.merge_in_place(other)
