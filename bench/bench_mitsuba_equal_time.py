@@ -15,7 +15,8 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   vertex 3 / 5 / off, max_depth 8 / unlimited (64), MIS power / balance, sampler Sobol /
   independent, and Mitsuba's path (its own roulette from depth 5, unlimited depth) with its
   independent and multijitter samplers; ``efficiency`` = 1 / (MSE x seconds).
-* ``seed_spread`` (with the variants): ours (max_depth 8, 64, roulette from vertex 4 and Mitsuba's policy) and
+* ``seed_spread`` (with the variants): ours (max_depth 8 and 64 under the default roulette from vertex
+  5, Mitsuba's policy; at 64 also from vertex 4 and from vertex 3, the default before session 38) and
   Mitsuba's two samplers at SEED_SPREAD_SPP in this process, SEED_SPREAD_SEEDS seeds each: per-pixel
   variance from the spread between seeds (no reference enters), render seconds, and variance x
   seconds against multijitter's (the equal-time MSE ratio without start-up).
@@ -199,11 +200,11 @@ def _variants(scene, cam, ps, ref_mean, noise, spp: int) -> dict:
     from render.integrators import RenderSettings, render
 
     variants = {
-        "ours_default (rr from vertex 3, depth 8, power MIS, sobol-blocks)": {},
-        "rr_depth 5": {"rr_depth": 5},
+        "ours_default (rr from vertex 5, depth 8, power MIS, sobol-blocks)": {},
+        "rr_depth 3 (the default before session 38)": {"rr_depth": 3},
         "roulette off": {"roulette": False},
         "max_depth 64 (unlimited)": {"max_depth": 64},
-        "rr_depth 5, max_depth 64 (Mitsuba's policy)": {"rr_depth": 5, "max_depth": 64},
+        "rr_depth 3, max_depth 64": {"rr_depth": 3, "max_depth": 64},
         "balance heuristic": {"heuristic": "balance"},
         "independent sampler": {"sampler": "independent"},
         "sobol sampler (R interleaved replicates)": {"sampler": "sobol"},
@@ -233,9 +234,9 @@ def _seed_spread(scene, cam, ps, mi, scene_json: Path, spp: int = SEED_SPREAD_SP
     d = json.loads(scene_json.read_text())
     d["sensor"]["to_world"] = mi.ScalarTransform4f().look_at(**d["sensor"].pop("look_at"))
     ours = {"ours sobol-blocks, max_depth 8 (default)": {},
-            "ours sobol-blocks, max_depth 64": {"max_depth": 64},
+            "ours sobol-blocks, max_depth 64 (roulette from vertex 5, the default)": {"max_depth": 64},
             "ours sobol-blocks, roulette from vertex 4, max_depth 64": {"max_depth": 64, "rr_depth": 4},
-            "ours sobol-blocks, roulette from vertex 5, max_depth 64 (Mitsuba's policy)": {"max_depth": 64, "rr_depth": 5}}
+            "ours sobol-blocks, roulette from vertex 3 (the default before session 38), max_depth 64": {"max_depth": 64, "rr_depth": 3}}
     runs: dict[str, tuple[list, list]] = {name: ([], []) for name in [*ours, "mitsuba multijitter", "mitsuba independent"]}
     for seed in range(11, 11 + seeds):
         for name, (imgs, secs) in runs.items():
