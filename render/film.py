@@ -133,14 +133,17 @@ class Film:
         self.s2 += s2
         self.n += n
 
-    def merged(self, other: "Film") -> "Film":
-        """A new film holding both films' samples."""
+    def _check_mergeable(self, other: "Film") -> None:
         if (self.width, self.height) != (other.width, other.height):
             raise ValueError("cannot merge films of different sizes")
         if (self.r1 is None) != (other.r1 is None) or (self.r1 is not None and self.r1.shape != other.r1.shape):
             raise ValueError("cannot merge films of different samplers (replicate sums on one side only)")
         if self.blocks != other.blocks:
             raise ValueError("cannot merge films of different samplers (blocks of one sequence against replicates)")
+
+    def merged(self, other: "Film") -> "Film":
+        """A new film holding both films' samples."""
+        self._check_mergeable(other)
         if self.r1 is None:
             return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n)
         return Film(self.width, self.height, self.s1 + other.s1, self.s2 + other.s2, self.n + other.n,
@@ -149,13 +152,8 @@ class Film:
     def merge_in_place(self, other: "Film") -> None:
         """Add ``other``'s samples to this film: the sums of :meth:`merged`, bit for bit, without
         new arrays (replicate sums only where ``other`` holds samples: a batch of a few samples
-        fills one or two of the R blocks, and x + 0.0 is x)."""
-        if (self.width, self.height) != (other.width, other.height):
-            raise ValueError("cannot merge films of different sizes")
-        if (self.r1 is None) != (other.r1 is None) or (self.r1 is not None and self.r1.shape != other.r1.shape):
-            raise ValueError("cannot merge films of different samplers (replicate sums on one side only)")
-        if self.blocks != other.blocks:
-            raise ValueError("cannot merge films of different samplers (blocks of one sequence against replicates)")
+        fills one or two of the R blocks, and x + 0.0 is x: sums that start at +0.0 never hold -0.0)."""
+        self._check_mergeable(other)
         self.s1 += other.s1
         self.s2 += other.s2
         self.n += other.n
