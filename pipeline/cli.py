@@ -74,7 +74,8 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
 
 @app.command()
 def reference(scene: str = typer.Argument(..., help="built-in scene name or path to a scene YAML"),
-              spp: int = typer.Option(64, help="samples per pixel"),
+              spp: int = typer.Option(64, help="samples per pixel (the Sobol samplers stratify best at powers "
+                                               "of two: docs/architecture.md, issue 16)"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
               views: str = typer.Option("auto", help="auto (test views if the scene has them, else its scene camera) | test | all | scene"),
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
