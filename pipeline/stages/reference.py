@@ -47,7 +47,8 @@ from ..distributed import ClusterConfig, LocalEngine, engine, worker_cache
 from ..progress import progress_bar
 
 __all__ = ["ReferenceConfig", "run_reference", "select_views", "resize_camera", "render_batch", "fold_batches",
-           "finish_view", "check_fits", "available_memory", "SAMPLE_BATCH", "MAX_SPP", "BYTES_PER_PIXEL"]
+           "fold_batches_in_place", "finish_view", "check_fits", "available_memory", "SAMPLE_BATCH", "MAX_SPP",
+           "BYTES_PER_PIXEL", "LOCAL_UNITS_AT_ONCE"]
 
 #: samples per pixel rendered per unit of work; fixed, so results never depend on the split
 SAMPLE_BATCH = 8
@@ -265,7 +266,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         # in process, LOCAL_UNITS_AT_ONCE units run side by side (each alone left cores idle at its
         # end, waiting for its slowest thread) and are folded in place; threads never change a
         # render's result, and the fold still takes units in order: the same bytes
-        concurrent = LOCAL_UNITS_AT_ONCE if isinstance(eng, LocalEngine) else 1
+        in_process = isinstance(eng, LocalEngine)
+        concurrent = LOCAL_UNITS_AT_ONCE if in_process else 1
         worker_cache(f"{scene.key}-{settings.threads}", lambda: prepared)  # in process: reuse the BVH above
         if eng.render_threads != settings.threads:
             settings = replace(settings, threads=eng.render_threads)
@@ -281,7 +283,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
             totals[name] = stats
 
         units = [[(scene.key, cam, settings, rng, effects) for rng in batches] for _, cam in chosen]
-        fold = fold_batches_in_place if isinstance(eng, LocalEngine) else fold_batches
+        fold = fold_batches_in_place if in_process else fold_batches
         t0 = time.perf_counter()
         eng.fold_groups(render_batch, units, fold, finish_view, shared=[scene], name="reference-batch",
                         on_unit=lambda: bar.advance(task), on_group=write_view, concurrent=concurrent)
@@ -292,8 +294,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         seconds = stats.get("time_s", 0.0)
         counted_rays = all("rays" in st for st in totals.values())  # pssmlt counts none
         write_cameras_json(tmp / "cameras.json", [c for _, c in chosen], [s for s, _ in chosen])
-        # throughput over the wall clock of all units (units overlap: their summed times, render_time_s,
-        # count the overlap twice)
+        # throughput over the fold's wall clock (units, merges, the views' files): units overlap, so
+        # their summed times (render_time_s) count the overlap twice
         manifest.metrics = {"views": len(chosen), "paths_per_s": stats.get("paths", 0) / max(wall, 1e-9),
                             "rays_per_s": stats["rays"] / max(wall, 1e-9) if counted_rays else None,
                             "render_wall_s": round(wall, 3), "render_time_s": round(seconds, 3),
