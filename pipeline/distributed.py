@@ -220,7 +220,8 @@ class LocalEngine:
     @staticmethod
     def _in_order(pool, ahead: int, work: Callable, args: list, units: Sequence[tuple]):
         """work(*args, *unit) for each unit, yielded in order; on ``pool`` with at most ``ahead``
-        units submitted beyond the one yielded next (a bounded number of results in memory)."""
+        units submitted and not yet yielded, besides the one the caller is folding (a bounded
+        number of results in memory)."""
         if pool is None:
             for unit in units:
                 yield work(*args, *unit)
