@@ -74,13 +74,15 @@ def capture(scene: str = typer.Argument(..., help="built-in scene name or path t
 
 @app.command()
 def reference(scene: str = typer.Argument(..., help="built-in scene name or path to a scene YAML"),
-              spp: int = typer.Option(64, help="samples per pixel (the Sobol samplers stratify best at powers "
-                                               "of two: docs/architecture.md, issue 16)"),
+              spp: int = typer.Option(64, help="samples per pixel; under the Sobol samplers rounded up to at most "
+                                               "four binary digits (<= 12.5% more: whole nets; powers of two "
+                                               "stratify best: docs/architecture.md, issue 16)"),
               size: Optional[tuple[int, int]] = typer.Option(None, help="render size W H (default: the views' own)"),
               views: str = typer.Option("auto", help="auto (test views if the scene has them, else its scene camera) | test | all | scene"),
               integrator: str = typer.Option("auto", help="auto (from the scene's effects) | direct | path | volpath | bdpt | pssmlt | sppm | irradiance_cache"),
               seed: int = typer.Option(0, help="render seed"),
-              max_depth: int = typer.Option(8, help="maximum bounces"),
+              max_depth: Optional[int] = typer.Option(None, help="maximum bounces (default: 64 for path and volpath, "
+                                                                 "whose paths Russian roulette ends; 8 for the others)"),
               sampler: Optional[str] = typer.Option(None, help="path/direct/volpath random numbers: sobol-blocks (one "
                                                                "Owen-scrambled Sobol sequence per pixel, variance "
                                                                "from its blocks by a fitted power law; the default "
@@ -100,7 +102,9 @@ def reference(scene: str = typer.Argument(..., help="built-in scene name or path
     config = ReferenceConfig(spp=spp, size=size, views=views, integrator=integrator, seed=seed, max_depth=max_depth,
                              sampler=sampler)
     m = run_reference(rig, path, out, config, quiet, _cluster(scheduler, workers), overwrite=overwrite)
-    typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {spp} spp, "
+    rendered = m["params"]["spp"]
+    asked = f" ({spp} asked, rounded up to whole Sobol nets)" if rendered != spp else ""
+    typer.echo(f"reference: {m['metrics']['views']} views, {m['params']['integrator']} at {rendered} spp{asked}, "
                f"{m['metrics']['paths_per_s'] / 1e6:.2f} M paths/s -> {out}")
 
 

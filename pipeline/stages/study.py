@@ -233,7 +233,7 @@ def _sweep_reference(sw: _Sweep, rig, scene_file: Path, views: list[str], truth,
             m = sw.point("reference", integ, f"{integ} {spp} spp", go, spp=spp)
             if m is None:
                 continue
-            sw.add(stage="reference", family=integ, setting=f"{integ} {spp} spp", spp=spp,
+            sw.add(stage="reference", family=integ, setting=f"{integ} {spp} spp", spp=m["params"]["spp"],
                    time_s=m["wall_time_s"], **_score(_read_views(out / "linear", views), truth))
             shutil.rmtree(out, ignore_errors=True)
 

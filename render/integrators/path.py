@@ -61,7 +61,7 @@ from ..film import Film, RenderResult
 from ..path_aot import for_scene
 from ..sampling import _GOLDEN, _mix64
 from ..scene import Scene
-from ..sobol import REPLICATES, SAMPLERS, block_size, key_replicates, replicate_of, replicates_for
+from ..sobol import REPLICATES, SAMPLERS, block_size, key_replicates, replicate_of, replicates_for, shuffle_bits
 from .path_types import (F_DELTA, SAMPLER_SOBOL, STRAT_BSDF, STRAT_LIGHT, STRAT_MIS, KernelScene, PathConfig,
                          PinholeCamera, kernel_scene)
 from .prepared import PreparedScene
@@ -153,9 +153,10 @@ def _last_ray_buffers(n: int) -> tuple:
 
 def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emitters: bool,
            start: int, stop: int, sample0: int, replicates: int = REPLICATES,
-           kern=None) -> tuple[np.ndarray, np.ndarray, int]:
+           kern=None, shuffle: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
-    + pixel); replicates: the Sobol sampler's R (render.sobol.replicates_for). Returns ((N,)
+    + pixel); replicates: the Sobol sampler's R (render.sobol.replicates_for), shuffle its
+    render.sobol.shuffle_bits. Returns ((N,)
     int64 pixels, (N, 3) float64 radiance, rays traced).
 
     Wavefront: each bounce is one Embree call for all live paths, one compiled shading pass
@@ -180,7 +181,7 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
     kern.sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                            cur[5], cur[6], jit, cfg.sampler, replicates)
+                            cur[5], cur[6], jit, cfg.sampler, replicates, shuffle)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -238,9 +239,10 @@ def trace_view(scene: Scene, camera: Camera, settings: RenderSettings, options, 
     replicates = replicates_for(settings.spp)  # of the variance estimate
     block = block_size(sampler, settings.spp)  # 0: interleaved replicates, else consecutive blocks
     keys_r = key_replicates(sampler, settings.spp)  # 1 under "sobol-blocks": one sequence per pixel
+    shuffle = shuffle_bits(sampler, settings.spp)
 
     def work(chunk):
-        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, keys_r, kern)
+        return _trace(ps, camera, cfg, settings.seed, query_emitters, chunk[0], chunk[1], a, keys_r, kern, shuffle)
 
     film = Film(k.width, k.height)
     npix = k.width * k.height

@@ -43,7 +43,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from .._kernel_cache import skip_numba_blas_probe
-from ..sobol import REPLICATES
+from ..sobol import INDEX_BITS, REPLICATES
 # the numba-free definitions, re-exported (render.path_aot's processes import them without numba)
 from .path_types import (LAMBERT, MIRROR, DIELECTRIC, EMISSIVE, POINT, SPOT, DIRECTIONAL, STRAT_MIS,
                          STRAT_LIGHT, STRAT_BSDF, SAMPLER_INDEPENDENT, SAMPLER_SOBOL, F_DELTA, F_AFTER_DIFF,
@@ -62,6 +62,8 @@ _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
 _MASK32 = np.uint64(0xFFFFFFFF)
 _HI32 = np.uint64(0xFFFFFFFF00000000)
+_INDEX = np.uint64((1 << INDEX_BITS) - 1)  # a Sobol key's index bits; bits 27 .. 31: its shuffle q
+_SHUFFLE_SHIFT = np.uint64(INDEX_BITS)
 _U0, _U1, _U2, _U4, _U8, _U16, _U32 = (np.uint64(x) for x in (0, 1, 2, 4, 8, 16, 32))
 _INV_2_32 = 1.0 / 4294967296.0
 _ONE_MINUS = 1.0 - 2.0 ** -53  # the largest float64 below 1
@@ -168,6 +170,47 @@ def _laine_karras(typingctx, x, h):
     return types.uint64(types.uint64, types.uint64), codegen
 
 
+@intrinsic
+def _kensler(typingctx, x, p, w):
+    """render.sobol.kensler_permute of x <= w (w = 2^q - 1) keyed by p's low 32 bits, in 32-bit
+    integers (every step of the reference is masked to 32 bits) so the block passes vectorize it."""
+    if x != types.uint64 or p != types.uint64 or w != types.uint64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        i32 = ir.IntType(32)
+        c = lambda v: ir.Constant(i32, v)  # noqa: E731
+        i, key, mask = (builder.trunc(a, i32) for a in args)
+        xs = lambda v, s: builder.xor(v, builder.lshr(builder.and_(v, mask), c(s)))  # noqa: E731
+        i = builder.mul(builder.xor(i, key), c(0xE170893D))
+        i = builder.xor(i, builder.lshr(key, c(16)))
+        i = xs(i, 4)
+        i = builder.mul(builder.xor(i, builder.lshr(key, c(8))), c(0x0929EB3F))
+        i = builder.xor(i, builder.lshr(key, c(23)))
+        i = builder.mul(xs(i, 1), builder.or_(builder.lshr(key, c(27)), c(1)))
+        i = builder.mul(i, c(0x6935FA69))
+        i = builder.mul(xs(i, 11), c(0x74DCB303))
+        i = builder.mul(xs(i, 2), c(0x9E501CC3))
+        i = builder.mul(xs(i, 2), c(0xC860A3DF))
+        i = builder.and_(i, mask)
+        i = builder.xor(i, builder.lshr(i, c(5)))
+        return builder.zext(builder.and_(builder.add(i, key), mask), ir.IntType(64))
+
+    return types.uint64(types.uint64, types.uint64, types.uint64), codegen
+
+
+@njit(inline="always", **_JIT)
+def _shuffle_mask(key):
+    """w = 2^q - 1, q the Sobol key's shuffle bits (render.sobol.shuffle_bits)."""
+    return (_U1 << ((key & _MASK32) >> _SHUFFLE_SHIFT)) - _U1
+
+
+@njit(inline="always", **_JIT)
+def _low_shuffle(j, h_index, w):
+    """j with its low bits (mask w) permuted by Kensler's hash keyed by h_index's high half."""
+    return (j & ~w) | _kensler(j & w, h_index >> _U32, w)
+
+
 @njit(inline="always", **_JIT)
 def _nested(x, h):
     """render.sobol.nested_scramble of a 32-bit value (in a uint64) by hash h."""
@@ -176,9 +219,11 @@ def _nested(x, h):
 
 @njit(inline="always", **_JIT)
 def _shuffled_index(key, h_index):
-    """The group's shuffled Sobol index j = _nested(i, h) ^ _nested(0, h) of the key's index i
-    (one bit reversal fewer: the two scrambles' outer reversals merge)."""
-    return _reverse32(_laine_karras(_reverse32(key & _MASK32), h_index) ^ _laine_karras(_U0, h_index))
+    """The group's shuffled Sobol index of the key's index i: j = _nested(i, h) ^ _nested(0, h)
+    (one bit reversal fewer: the two scrambles' outer reversals merge), its low bits then
+    permuted (:func:`_low_shuffle`, render.sobol.sobol_uniform)."""
+    j = _reverse32(_laine_karras(_reverse32(key & _INDEX), h_index) ^ _laine_karras(_U0, h_index))
+    return _low_shuffle(j, h_index, _shuffle_mask(key))
 
 
 @njit(inline="always", **_JIT)
@@ -256,27 +301,34 @@ def _sample(sampler, key, dim):
 
 
 @njit(inline="always", **_JIT)
-def _group_index(khi, rkey, dim0):
-    """A Sobol group's hash and shuffled index from the key's high half khi = key & _HI32 and
-    its reversed index rkey = _reverse32(key & _MASK32) (shared by all of a path's groups):
-    (h_index, j) as in :func:`_sobol2`."""
-    h_index = _mix64(khi + np.uint64(dim0 + 1) * _GOLDEN)
-    return h_index, _reverse32(_laine_karras(rkey, h_index) ^ _laine_karras(_U0, h_index))
+def _key_parts(key):
+    """The halves of a Sobol key that all of a path's groups share: (khi = key & _HI32, its
+    reversed index rkey, its shuffle mask w)."""
+    return key & _HI32, _reverse32(key & _INDEX), _shuffle_mask(key)
 
 
 @njit(inline="always", **_JIT)
-def _sobol2_shared(khi, rkey, dim0):
-    """_sobol2(key, dim0) from the shared halves of :func:`_group_index`."""
-    h_index, j = _group_index(khi, rkey, dim0)
+def _group_index(khi, rkey, w, dim0):
+    """A Sobol group's hash and shuffled index from the shared parts of :func:`_key_parts`:
+    (h_index, j) as in :func:`_sobol2`."""
+    h_index = _mix64(khi + np.uint64(dim0 + 1) * _GOLDEN)
+    j = _reverse32(_laine_karras(rkey, h_index) ^ _laine_karras(_U0, h_index))
+    return h_index, _low_shuffle(j, h_index, w)
+
+
+@njit(inline="always", **_JIT)
+def _sobol2_shared(khi, rkey, w, dim0):
+    """_sobol2(key, dim0) from the shared parts of :func:`_key_parts`."""
+    h_index, j = _group_index(khi, rkey, w, dim0)
     h0 = _mix64(h_index ^ _M1)
     h1 = _mix64(h_index ^ (np.uint64(2) * _M1))
     return np.float64(_scrambled_dim0(j, h0)) * _INV_2_32, np.float64(_scrambled_dim1(j, h1)) * _INV_2_32
 
 
 @njit(inline="always", **_JIT)
-def _sobol1_shared(khi, rkey, dim):
-    """_sobol(key, dim) of a 1-D group (component 0) from the shared halves of :func:`_group_index`."""
-    h_index, j = _group_index(khi, rkey, dim)
+def _sobol1_shared(khi, rkey, w, dim):
+    """_sobol(key, dim) of a 1-D group (component 0) from the shared parts of :func:`_key_parts`."""
+    h_index, j = _group_index(khi, rkey, w, dim)
     return np.float64(_scrambled_dim0(j, _mix64(h_index ^ _M1))) * _INV_2_32
 
 
@@ -327,16 +379,16 @@ def _bounce_numbers(sampler, keys, i0, i1, base, roulette, U):
         if roulette:
             for k in range(n):
                 key = keys[i0 + k]
-                khi, rkey = key & _HI32, _reverse32(key & _MASK32)
-                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, base + 1)
-                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, base + 4)
-                U[5, k] = _sobol1_shared(khi, rkey, base + 6)
+                khi, rkey, w = _key_parts(key)
+                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, w, base + 1)
+                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, w, base + 4)
+                U[5, k] = _sobol1_shared(khi, rkey, w, base + 6)
         else:
             for k in range(n):
                 key = keys[i0 + k]
-                khi, rkey = key & _HI32, _reverse32(key & _MASK32)
-                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, base + 1)
-                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, base + 4)
+                khi, rkey, w = _key_parts(key)
+                U[1, k], U[2, k] = _sobol2_shared(khi, rkey, w, base + 1)
+                U[3, k], U[4, k] = _sobol2_shared(khi, rkey, w, base + 4)
     else:
         for k in range(n):
             key = keys[i0 + k]
@@ -487,17 +539,18 @@ def uniform_dims(keys, dim0, count, sampler=SAMPLER_INDEPENDENT):
 
 @njit(**_JIT)
 def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole, keys, pix, o32, d32, jit,
-                       sampler=SAMPLER_INDEPENDENT, replicates=REPLICATES):
+                       sampler=SAMPLER_INDEPENDENT, replicates=REPLICATES, shuffle=0):
     """Camera samples of flat indices [start, stop): flat = (sample - sample0) * npix + pixel.
 
     seed_mix: uint64 mix64(seed + golden) (render.sampling.path_keys). cam: a
     :class:`PinholeCamera`. Writes keys (N,) uint64 (render.sampling.path_keys, or
-    render.sobol.sobol_keys with ``replicates`` when ``sampler`` is SAMPLER_SOBOL), pix (N,) int64, jit (N, 2)
+    render.sobol.sobol_keys with ``replicates`` and ``shuffle`` when ``sampler`` is SAMPLER_SOBOL), pix (N,) int64, jit (N, 2)
     jittered pixel positions (dims 0, 1), and when ``pinhole`` the unit rays o32, d32 (N, 3)
     float32 (what Embree traces and shading reads).
     """
     rot, origin = cam.rotation, cam.origin
     nrep = np.uint64(replicates)
+    tag = np.uint64(shuffle) << _SHUFFLE_SHIFT
     n = stop - start
     # pixel (and its column, row), sample, and the sample's replicate and index within it,
     # advanced by counters: no integer division per path
@@ -508,7 +561,7 @@ def sample_camera_rays(start, stop, npix, width, sample0, seed_mix, cam, pinhole
     for i in range(n):
         k = _mix64(np.uint64(p) * _GOLDEN ^ seed_mix)
         if sampler == SAMPLER_SOBOL:  # hash of (seed, pixel, replicate) over the Sobol index
-            key = (_mix64(k ^ (rep * _M2 + _GOLDEN)) & _HI32) | (q & _MASK32)
+            key = (_mix64(k ^ (rep * _M2 + _GOLDEN)) & _HI32) | (q & _INDEX) | tag
         else:
             key = _mix64(k ^ (np.uint64(s) * _M2 + _GOLDEN))
         keys[i] = key

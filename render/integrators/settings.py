@@ -12,7 +12,7 @@ from dataclasses import dataclass, fields
 
 from .choice import INTEGRATOR_EFFECTS
 
-__all__ = ["RenderSettings", "OPTION_NAMES", "STRATEGIES", "HEURISTICS", "SAMPLER_NAMES", "check_strategy",
+__all__ = ["RenderSettings", "MAX_SAMPLE_INDEX", "OPTION_NAMES", "STRATEGIES", "HEURISTICS", "SAMPLER_NAMES", "check_strategy",
            "check_heuristic", "check_sampler", "heuristic_exponent", "parse_sample_range"]
 
 #: next-event strategies: both techniques MIS-weighted, light sampling alone, BSDF sampling alone
@@ -46,12 +46,19 @@ def heuristic_exponent(heuristic: str) -> float:
     return HEURISTICS[heuristic]
 
 
+#: samples per pixel a render may reach (render.sobol.INDEX_BITS: a Sobol key holds a pixel's
+#: sample index in 27 bits; at 128 x 128 pixels that is 2.2e12 paths)
+MAX_SAMPLE_INDEX = 1 << 27
+
+
 def parse_sample_range(spp: int, sample_range, integrator: str) -> tuple[int, int]:
     """The half-open sample range [a, b) of a render: ``sample_range`` or (0, spp). ValueError
-    naming ``integrator`` unless 0 <= a < b."""
+    naming ``integrator`` unless 0 <= a < b <= MAX_SAMPLE_INDEX."""
     a, b = (0, int(spp)) if sample_range is None else (int(sample_range[0]), int(sample_range[1]))
     if not 0 <= a < b:
         raise ValueError(f"{integrator}: sample_range must satisfy 0 <= start < stop, got {(a, b)}")
+    if b > MAX_SAMPLE_INDEX:
+        raise ValueError(f"{integrator}: sample_range stop {b} exceeds {MAX_SAMPLE_INDEX} (the Sobol keys' 27 index bits)")
     return a, b
 
 
@@ -101,6 +108,8 @@ class RenderSettings:
             check_sampler(self.sampler)
         if self.spp < 1 or self.max_depth < 0 or (self.rr_depth or 0) < 0 or self.threads < 1 or self.batch_paths < 1:
             raise ValueError("spp, threads and batch_paths must be >= 1; max_depth, rr_depth >= 0")
+        if self.spp > MAX_SAMPLE_INDEX:
+            raise ValueError(f"spp must be at most {MAX_SAMPLE_INDEX} (the Sobol keys' 27 index bits), got {self.spp}")
         if self.photons_per_pass is not None and self.photons_per_pass < 1:
             raise ValueError(f"photons_per_pass must be >= 1, got {self.photons_per_pass}")
 

@@ -67,7 +67,7 @@ from ..media import EV_ABSORB, EV_SCATTER, MajorantError, MediumSet, hg_pdf, hg_
 from ..microfacet import (conductor_eval, conductor_pdf, conductor_sample, rough_dielectric_eval,
                           rough_dielectric_pdf, rough_dielectric_sample)
 from ..sampling import _GOLDEN, _mix64, mis_weight, orthonormal_frame, to_local, to_world
-from ..sobol import SAMPLERS, block_size, key_replicates, replicate_of, replicates_for
+from ..sobol import SAMPLERS, block_size, key_replicates, replicate_of, replicates_for, shuffle_bits
 from .path import _STRATEGY_CODES, kernel_scene_of, pinhole_of
 from .path_kernels import F_DELTA, SAMPLER_SOBOL, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays
 from .prepared import PreparedScene, prepare
@@ -537,10 +537,12 @@ def _raise_majorant(ctx: VolContext, err: np.ndarray) -> None:
 
 
 def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfig, seed: int, mid0: int,
-                    start: int, stop: int, sample0: int, replicates: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+                    start: int, stop: int, sample0: int, replicates: int = 1,
+                    shuffle: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
     + pixel) with the compiled kernels; replicates: the R the Sobol keys are built with
-    (render.sobol.key_replicates; unread by the independent sampler). Returns ((N,) int64
+    (render.sobol.key_replicates; unread by the independent sampler), shuffle their
+    render.sobol.shuffle_bits. Returns ((N,) int64
     pixels, (N, 3) float64 radiance, rays traced: Embree queries for surfaces, media boundaries
     and shadows)."""
     k = cam.intrinsics
@@ -552,7 +554,7 @@ def _trace_compiled(ctx: VolContext, comp: _Compiled, cam: Camera, cfg: VolConfi
     seed_mix = _mix64(np.array([np.uint64(seed & 0xFFFFFFFFFFFFFFFF)], dtype=np.uint64) + _GOLDEN)[0]
     pinhole = not k.has_distortion
     sample_camera_rays(start, stop, npix, k.width, sample0, seed_mix, pinhole_of(cam), pinhole, cur[1], pix,
-                       cur[5], cur[6], jit, cfg.sampler, replicates)
+                       cur[5], cur[6], jit, cfg.sampler, replicates, shuffle)
     if not pinhole:
         o, d = cam.pixel_rays(jit)
         cur[5][:], cur[6][:] = o, d
@@ -680,9 +682,10 @@ def render_result(scene, camera: Camera, settings: RenderSettings, options: Opti
     replicates = replicates_for(settings.spp)  # of the variance estimate (the render's planned spp)
     block = block_size(options.sampler, settings.spp)  # 0: interleaved replicates, else consecutive blocks
     keys_r = key_replicates(options.sampler, settings.spp)  # 1 under "sobol-blocks": one sequence per pixel
+    shuffle = shuffle_bits(options.sampler, settings.spp)
 
     def work(chunk):
-        return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a, keys_r)
+        return _trace_compiled(ctx, comp, camera, cfg, settings.seed, mid0, chunk[0], chunk[1], a, keys_r, shuffle)
 
     film = Film(k.width, k.height)
     if cfg.sampler == SAMPLER_SOBOL:

@@ -13,10 +13,26 @@ import pytest
 from render.image_io import read_exr
 
 
-def _reference(out, *extra):
-    return subprocess.run([sys.executable, "-m", "pipeline", "reference", "cornell", "--views", "scene", "--spp", "16",
+def _reference(out, *extra, spp="16"):
+    return subprocess.run([sys.executable, "-m", "pipeline", "reference", "cornell", "--views", "scene", "--spp", spp,
                            "--size", "8", "8", "--out", str(out), "--quiet", *extra],
                           capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("extra,rendered,max_depth", [([], 104, 64), (["--sampler", "independent"], 100, 64),
+                                                       (["--sampler", "sobol", "--max-depth", "5"], 104, 5),
+                                                       (["--integrator", "bdpt"], 100, 8)])
+def test_spp_rounds_up_to_whole_nets_and_max_depth_follows_the_integrator(tmp_path, extra, rendered, max_depth):
+    """--spp 100 under a Sobol sampler renders 104 (a multiple of 8: whole nets,
+    render.sobol.stratified_spp), says so on stdout and records both counts; the independent
+    sampler and integrators without a sampler render what was asked. Without --max-depth, path
+    goes to 64 bounces (roulette ends it) and bdpt to 8."""
+    out = tmp_path / "reference"
+    proc = _reference(out, *extra, spp="100")
+    assert proc.returncode == 0, proc.stderr
+    params = json.loads((out / "manifest.json").read_text())["params"]
+    assert (params["spp"], params["spp_requested"], params["max_depth"]) == (rendered, 100, max_depth)
+    assert f"at {rendered} spp" in proc.stdout and (("100 asked" in proc.stdout) == (rendered != 100)), proc.stdout
 
 
 @pytest.mark.parametrize("integrator,samplers", [("path", (None, "independent", "sobol")),
