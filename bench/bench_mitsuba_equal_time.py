@@ -32,15 +32,18 @@ same machine load (the machine is shared: absolute times are inflated, ratios ar
   fresh seed per round, the load average recorded per round): each run kept, and the medians of
   RMSE, wall time and per-round ratios reported; from the second round on each contestant's spp
   is rescaled by its own previous wall time (closed loop: a calibration minutes old, under
-  another load, is not equal time).
+  another load, is not equal time). Ours asks for the nearest count the CLI renders as asked
+  (whole Sobol nets: render.sobol.stratified_spp rounds others up), as Mitsuba rounds its
+  multijitter counts to a grid. ``budget_scaled_ratio_*``: each round's ratio with both RMSEs
+  scaled to the budget as 1 / sqrt(render seconds), a check on rounds that missed it.
 * ``embree``: rays/s of bare Embree (embreex through render.accel's compiled path) on the same
   scene (camera rays, then cosine-distributed bounce rays from the first hits) against our
   rays/s and paths/s at 256 spp in the same process.
 
 Ours runs at equal time under ``sobol-blocks`` (one sequence per pixel, the default of path and
 direct since issue 16's session 30; its variance image is render.film.blocks_variance's model) at
-max_depth 8 (the CLI's default: 0.3% low on this scene, the cut-off's bias) and 64 (unbiased
-here, as Mitsuba's unlimited depth is); with ``--with-replicates`` also under ``sobol`` (R
+max_depth 8 (the CLI's default until session 39: 0.3% low on this scene, the cut-off's bias) and
+64 (the CLI's default for path since session 39; unbiased here, as Mitsuba's unlimited depth is); with ``--with-replicates`` also under ``sobol`` (R
 interleaved independent replicates: an unbiased variance image, about 2x the RMSE). Each ratio
 against Mitsuba's two samplers is reported.
 
@@ -176,6 +179,18 @@ def _spp_for(budget: float, calib: list[tuple[int, float]]) -> int:
     b = max((t1 - t0) / (n1 - n0), 1e-9)
     a = t0 - b * n0
     return max(1, int((budget - a) / b))
+
+
+def _nearest_whole_nets(n: int) -> int:
+    """The sample count nearest ``n`` that ``lumigraph reference`` renders as asked under the Sobol
+    samplers (render.sobol.stratified_spp rounds any other up, by at most 12.5%): asking for it
+    keeps our wall time centred on the budget instead of above it."""
+    from render.sobol import stratified_spp
+
+    up = stratified_spp(n)
+    step = 1 << max(0, int(n).bit_length() - 4)
+    down = max(1, n // step * step)
+    return up if up - n < n - down else down
 
 
 def _fixed_cost(calib: list[tuple[int, float]]) -> float:
@@ -430,6 +445,7 @@ def main(argv: list[str] | None = None) -> None:
                             for name, kind, sampler, depth, _ in plan]
                 for name, kind, sampler, depth, spp in plan:
                     if kind == "ours":
+                        spp = _nearest_whole_nets(spp)
                         img, wall, metrics = _run_ours(spp, 2 + k, tmp, sampler, depth)
                         rep[name] = {"sampler": sampler, "max_depth": depth, "spp": spp, "whole_process_s": round(wall, 3),
                                      **_rmse(img, ref_mean, noise),
@@ -442,6 +458,14 @@ def main(argv: list[str] | None = None) -> None:
                         for name in contestants:
                             rep[f"ratio_{name}_to_mitsuba_{sampler}"] = (
                                 rep[name]["rmse_truth_est"] / max(rep[f"mitsuba_{sampler}"]["rmse_truth_est"], 1e-30))
+                            # the rounds miss the budget by up to ~+-30% each way: the same ratio
+                            # with each RMSE scaled to the budget as 1 / sqrt(render seconds)
+                            # (whole process less its calibrated fixed cost), a check on the above
+                            own = (rep[name]["whole_process_s"] - fixed[name]) / max(budget - fixed[name], 0.1)
+                            theirs = ((rep[f"mitsuba_{sampler}"]["whole_process_s"] - fixed[f"mitsuba_{sampler}"])
+                                      / max(budget - fixed[f"mitsuba_{sampler}"], 0.1))
+                            rep[f"budget_scaled_ratio_{name}_to_mitsuba_{sampler}"] = (
+                                rep[f"ratio_{name}_to_mitsuba_{sampler}"] * float(np.sqrt(max(own, 1e-3) / max(theirs, 1e-3))))
                 row["repeats"].append(rep)
             reps = row["repeats"]
             for name, *_ in plan:
@@ -449,6 +473,8 @@ def main(argv: list[str] | None = None) -> None:
                              "median_whole_process_s": statistics.median(r[name]["whole_process_s"] for r in reps),
                              "median_rmse_truth_est": statistics.median(r[name]["rmse_truth_est"] for r in reps)}
             if mi is not None:
+                for key in [k for k in reps[0] if k.startswith("budget_scaled_ratio_")]:
+                    row[key] = {"median": statistics.median(r[key] for r in reps), "per_repeat": [r[key] for r in reps]}
                 for key in [k for k in reps[0] if k.startswith("ratio_")]:
                     row[key] = {"median": statistics.median(r[key] for r in reps), "per_repeat": [r[key] for r in reps],
                                 "ratio_of_medians": (row[key.split("_to_")[0][len("ratio_"):]]["median_rmse_truth_est"]

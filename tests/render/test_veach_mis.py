@@ -1,12 +1,14 @@
 """Veach's MIS scene (scenes/veach_mis.yaml): where light sampling wins, where BSDF sampling
 wins, and that MIS (power heuristic) is never worse than the better of the two (Veach 1997,
-fig. 9.2). One-bounce volpath renders at 64 x 48, 128 spp, fixed seeds.
+fig. 9.2). One-bounce volpath renders at 64 x 48, 128 spp, four fixed seeds per technique.
 
 The image splits into 16 cells: four GGX plates (roughness 0.01 to 0.25, front to back) times
 four column quarters, each quarter holding the reflection of one source (radius 0.03 to 0.5,
 left to right, equal power). Each cell's variance is the sum of its pixels' variances of the
 mean; the means are sums over the cell.
 """
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -16,6 +18,10 @@ from render.integrators import RenderSettings, prepare, render
 from rig.build import load_scene
 
 SPP = 128
+#: a single render's variance estimate is heavy-tailed in the small-source cells (light sampling's
+#: cell (0, 0) at seed 11: 0.56 against a median of 4.9 over 12 seeds), so each technique's
+#: variance image is the mean of four renders' estimates (the expected variance of one render)
+SEEDS = (11, 12, 13, 14)
 ALPHA = 1e-3  # family-wise, Bonferroni over the 16 cells
 
 
@@ -38,9 +44,12 @@ def veach():
             cell = np.zeros_like(m)
             cell[:, edges[light]:edges[light + 1]] = True
             cells[plate, light] = m & cell
-    renders = {s: render(rs.scene, cam, RenderSettings(integrator="volpath", spp=SPP, max_depth=1, seed=11,
-                                                       strategy=s), prepared=ps)
-               for s in ("mis", "light", "bsdf")}
+    renders = {}
+    for s in ("mis", "light", "bsdf"):
+        runs = [render(rs.scene, cam, RenderSettings(integrator="volpath", spp=SPP, max_depth=1, seed=seed,
+                                                     strategy=s), prepared=ps) for seed in SEEDS]
+        renders[s] = SimpleNamespace(mean=np.mean([r.mean for r in runs], axis=0),
+                                     variance=np.mean([r.variance for r in runs], axis=0))
     return cells, renders
 
 
