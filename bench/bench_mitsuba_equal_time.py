@@ -185,11 +185,10 @@ def _nearest_whole_nets(n: int) -> int:
     """The sample count nearest ``n`` that ``lumigraph reference`` renders as asked under the Sobol
     samplers (render.sobol.stratified_spp rounds any other up, by at most 12.5%): asking for it
     keeps our wall time centred on the budget instead of above it."""
-    from render.sobol import stratified_spp
+    from render.sobol import stratified_spp, whole_net_step
 
     up = stratified_spp(n)
-    step = 1 << max(0, int(n).bit_length() - 4)
-    down = max(1, n // step * step)
+    down = max(1, n // whole_net_step(n) * whole_net_step(n))
     return up if up - n < n - down else down
 
 

@@ -263,7 +263,8 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
     except ValueError as exc:
         raise BadInput(f"--sampler: {exc}") from None
     spp_requested = spp
-    if getattr(options, "sampler", None) in ("sobol", "sobol-blocks"):  # whole nets (render.sobol.stratified_spp)
+    sobol_sampler = getattr(options, "sampler", None) in ("sobol", "sobol-blocks")
+    if sobol_sampler:  # whole nets (render.sobol.stratified_spp)
         spp = min(stratified_spp(spp), MAX_SPP)
         settings = replace(settings, spp=spp)
     manifest = Manifest("reference", params={
@@ -271,7 +272,7 @@ def run_reference(rig: RigScene, scene_file: Path, out: Path, config: ReferenceC
         "spp_requested": spp_requested, "seed": seed, "max_depth": max_depth,
         "sampler": getattr(options, "sampler", None),
         # the Sobol sampler's replicates: the variance image has R - 1 degrees of freedom per pixel
-        "replicates": replicates_for(spp) if getattr(options, "sampler", None) in ("sobol", "sobol-blocks") else None,
+        "replicates": replicates_for(spp) if sobol_sampler else None,
         "integrator_requested": integrator, "integrator": chosen_integrator, "effects": sorted(effects),
         "size": list(size) if size else None, "sample_batch": SAMPLE_BATCH})
     manifest.add_input(scene_file)

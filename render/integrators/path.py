@@ -156,8 +156,7 @@ def _trace(ps: PreparedScene, cam: Camera, cfg: PathConfig, seed: int, query_emi
            kern=None, shuffle: int = 0) -> tuple[np.ndarray, np.ndarray, int]:
     """Trace the camera samples of flat indices [start, stop) (flat = (sample - sample0) * H * W
     + pixel); replicates: the Sobol sampler's R (render.sobol.replicates_for), shuffle its
-    render.sobol.shuffle_bits. Returns ((N,)
-    int64 pixels, (N, 3) float64 radiance, rays traced).
+    render.sobol.shuffle_bits. Returns ((N,) int64 pixels, (N, 3) float64 radiance, rays traced).
 
     Wavefront: each bounce is one Embree call for all live paths, one compiled shading pass
     (:func:`render.integrators.path_kernels.shade_bounce`) that also writes the next rays and

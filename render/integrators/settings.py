@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from ..sobol import INDEX_BITS
 from .choice import INTEGRATOR_EFFECTS
 
 __all__ = ["RenderSettings", "MAX_SAMPLE_INDEX", "OPTION_NAMES", "STRATEGIES", "HEURISTICS", "SAMPLER_NAMES", "check_strategy",
@@ -48,7 +49,7 @@ def heuristic_exponent(heuristic: str) -> float:
 
 #: samples per pixel a render may reach (render.sobol.INDEX_BITS: a Sobol key holds a pixel's
 #: sample index in 27 bits; at 128 x 128 pixels that is 2.2e12 paths)
-MAX_SAMPLE_INDEX = 1 << 27
+MAX_SAMPLE_INDEX = 1 << INDEX_BITS
 
 
 def parse_sample_range(spp: int, sample_range, integrator: str) -> tuple[int, int]:

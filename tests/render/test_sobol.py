@@ -137,6 +137,19 @@ def test_low_bit_shuffle_matches_groups_at_random():
     assert sobol.shuffle_bits("independent", 1024) == 0
 
 
+def test_sample_index_beyond_the_keys_bits_is_refused():
+    """A Sobol key holds a pixel's sample index in INDEX_BITS bits: larger spp or ranges are
+    refused at the settings boundary, not wrapped into the shuffle bits."""
+    from render.integrators.settings import MAX_SAMPLE_INDEX, parse_sample_range
+
+    assert MAX_SAMPLE_INDEX == 1 << sobol.INDEX_BITS
+    RenderSettings(spp=MAX_SAMPLE_INDEX)
+    with pytest.raises(ValueError, match="27 index bits"):
+        RenderSettings(spp=MAX_SAMPLE_INDEX + 1)
+    with pytest.raises(ValueError, match="27 index bits"):
+        parse_sample_range(16, (0, MAX_SAMPLE_INDEX + 1), "path")
+
+
 def _area_light_probe(size: int):
     """A Lambertian receiver (albedo RHO) under a 1.0 x 0.6 source of radiance LE at height 0.8,
     seen by a size x size probe camera whose pixels all look at one point q (closed form
