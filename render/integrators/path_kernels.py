@@ -431,40 +431,66 @@ def _block_geometry(ids, tris, prim, hu, hv, d32, i0, n, W):
         W[(_W_D + 2) * _BLOCK + k] = np.float64(d32[i, 2])
 
 
+_A_ROWS = 19  # a block's picked area-light rows (LightSet._packed's 17 columns), then the pick's CDF interval
+_A_LO, _A_WIDTH = 17, 18
+
+
 @njit(inline="always", **_JIT)
-def _light_samples(sampler, cdf, area, n_area, floor, n, U, K, W):
+def _light_samples(sampler, cdf, area, n_area, floor, n, U, K, W, A):
     """The next-event light samples of a block's paths from their numbers U
     (:func:`_bounce_numbers`) and hit points (:func:`_block_geometry`): K[k] the light picked,
     W's light rows the area entry's sample from the hit point (valid, wi (3), dist, Li (3), pdf
     of :func:`_sample_area`, and the light's normal; garbage for misses and delta lights, which
-    are not read). The pick is a scalar loop (its search has a data-dependent length). The
-    Sobol sampler picks with dimension base + 1 and reuses it, rescaled within the picked
-    light's CDF interval, as the point's first coordinate: uniform again, so each light's
-    points keep the pair's stratification (pbrt's remapped u)."""
+    are not read). The Sobol sampler picks with dimension base + 1 and reuses it, rescaled within
+    the picked light's CDF interval, as the point's first coordinate: uniform again, so each
+    light's points keep the pair's stratification (pbrt's remapped u).
+
+    Two passes: a scalar one picks (its search has a data-dependent length) and copies the
+    picked area row and CDF interval into the block scratch A (row r of path k at
+    A[r * _BLOCK + k]); a branch-free one then evaluates :func:`_sample_area`'s expressions, in
+    its order (the same bits), over the block, so LLVM vectorizes it."""
     total = cdf[len(cdf) - 1]
-    for k in range(n):
-        if sampler == SAMPLER_SOBOL:
-            ua = U[1, k]
-            kk = _pick(cdf, ua)
-            lo = cdf[kk - 1] if kk > 0 else 0.0
-            width = cdf[kk] - lo
-            u1 = min((ua * total - lo) / width, _ONE_MINUS) if width > 0.0 else 0.5
-            W[_W_OK * _BLOCK + k] = max(u1, 0.0)
-        else:
-            kk = _pick(cdf, U[0, k])
-            W[_W_OK * _BLOCK + k] = U[1, k]
-        K[k] = kk
     last = max(n_area - 1, 0)
+    sobol = sampler == SAMPLER_SOBOL
     for k in range(n):
-        kk = min(K[k], last)
-        px, py, pz = W[(_W_P + 0) * _BLOCK + k], W[(_W_P + 1) * _BLOCK + k], W[(_W_P + 2) * _BLOCK + k]
-        ok, lx, ly, lz, ldist, L0, L1, L2, lpdf = _sample_area(area, kk, floor, px, py, pz, W[_W_OK * _BLOCK + k], U[2, k])
-        W[_W_OK * _BLOCK + k] = 1.0 if ok else 0.0
-        W[(_W_L + 0) * _BLOCK + k], W[(_W_L + 1) * _BLOCK + k], W[(_W_L + 2) * _BLOCK + k] = lx, ly, lz
-        W[_W_DIST * _BLOCK + k] = ldist
-        W[(_W_LE + 0) * _BLOCK + k], W[(_W_LE + 1) * _BLOCK + k], W[(_W_LE + 2) * _BLOCK + k] = L0, L1, L2
-        W[_W_LPDF * _BLOCK + k] = lpdf
-        W[(_W_LN + 0) * _BLOCK + k], W[(_W_LN + 1) * _BLOCK + k], W[(_W_LN + 2) * _BLOCK + k] = area[kk, 9], area[kk, 10], area[kk, 11]
+        kk = _pick(cdf, U[1, k] if sobol else U[0, k])
+        K[k] = kk
+        if sobol:
+            lo = cdf[kk - 1] if kk > 0 else 0.0
+            A[_A_LO * _BLOCK + k] = lo
+            A[_A_WIDTH * _BLOCK + k] = cdf[kk] - lo
+        kc = min(kk, last)
+        for col in range(17):
+            A[col * _BLOCK + k] = area[kc, col]
+    for k in range(n):
+        if sobol:
+            width = A[_A_WIDTH * _BLOCK + k]
+            u1 = min((U[1, k] * total - A[_A_LO * _BLOCK + k]) / width, _ONE_MINUS) if width > 0.0 else 0.5
+            u1 = max(u1, 0.0)
+        else:
+            u1 = U[1, k]
+        # _sample_area(area, kc, floor, p, u1, U[2, k])
+        su = _sqrt(u1)
+        b1 = 1.0 - su
+        b2 = U[2, k] * su
+        dx = A[0 * _BLOCK + k] + b1 * A[3 * _BLOCK + k] + b2 * A[6 * _BLOCK + k] - W[(_W_P + 0) * _BLOCK + k]
+        dy = A[1 * _BLOCK + k] + b1 * A[4 * _BLOCK + k] + b2 * A[7 * _BLOCK + k] - W[(_W_P + 1) * _BLOCK + k]
+        dz = A[2 * _BLOCK + k] + b1 * A[5 * _BLOCK + k] + b2 * A[8 * _BLOCK + k] - W[(_W_P + 2) * _BLOCK + k]
+        r2 = max(dx * dx + dy * dy + dz * dz, floor)
+        r = _sqrt(r2)
+        wx, wy, wz = dx / r, dy / r, dz / r
+        lnx, lny, lnz = A[9 * _BLOCK + k], A[10 * _BLOCK + k], A[11 * _BLOCK + k]
+        cos_l = -(wx * lnx + wy * lny + wz * lnz)
+        emits = (A[16 * _BLOCK + k] > 0.0) | (cos_l > 0.0)
+        e = 1.0 if emits else 0.0
+        W[_W_OK * _BLOCK + k] = 1.0 if emits & (cos_l != 0.0) else 0.0
+        W[(_W_L + 0) * _BLOCK + k], W[(_W_L + 1) * _BLOCK + k], W[(_W_L + 2) * _BLOCK + k] = wx, wy, wz
+        W[_W_DIST * _BLOCK + k] = r
+        W[(_W_LE + 0) * _BLOCK + k] = A[13 * _BLOCK + k] * e
+        W[(_W_LE + 1) * _BLOCK + k] = A[14 * _BLOCK + k] * e
+        W[(_W_LE + 2) * _BLOCK + k] = A[15 * _BLOCK + k] * e
+        W[_W_LPDF * _BLOCK + k] = A[12 * _BLOCK + k] * r2 / max(abs(cos_l), _COS_FLOOR)
+        W[(_W_LN + 0) * _BLOCK + k], W[(_W_LN + 1) * _BLOCK + k], W[(_W_LN + 2) * _BLOCK + k] = lnx, lny, lnz
 
 
 @njit(inline="always", **_JIT)
@@ -949,6 +975,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
     U = np.empty((7, _BLOCK))
     K = np.empty(_BLOCK, np.int64)
     W = np.empty(_W_ROWS * _BLOCK)
+    A = np.empty(_A_ROWS * _BLOCK)
     nee = cfg.nee_any and has_lights
     mis = cfg.strategy == STRAT_MIS
     for i in range(len(prim)):
@@ -958,7 +985,7 @@ def shade_bounce(ks, cfg, depth, prim, tfar, hu, hv, idx, keys, beta, d32, pdf, 
             _bounce_numbers(cfg.sampler, keys, i, i1, base, roulette, U)
             _block_geometry(ids, tris, prim, hu, hv, d32, i, i1 - i, W)
             if nee:
-                _light_samples(cfg.sampler, cdf, area, n_area, floor, i1 - i, U, K, W)
+                _light_samples(cfg.sampler, cdf, area, n_area, floor, i1 - i, U, K, W, A)
             _block_vertices(i1 - i, U, W, extent, nee, mis, cfg.mis_exponent)
         slot = idx[i]
         fl = flags[i]
