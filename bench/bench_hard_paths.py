@@ -260,7 +260,7 @@ def samples_per_second(cam: Camera, quick: bool) -> dict:
     from render.integrators.volpath import render_volpath
 
     load0 = os.getloadavg()
-    spp, reps = (8, 3) if quick else (64, 5)
+    spp, reps = (8, 3) if quick else (64, 15)  # 40-90 ms renders: 5 repeats left the ratios +-10%
     k = cam.intrinsics
     out = {"spp": spp, "size": [k.width, k.height], "repeats": reps}
     for scene_name, sc in (("caustic", caustic_scene()), ("fog", caustic_scene(0.4))):
