@@ -601,10 +601,6 @@ def _photon_batch(ps, ks, bounds, seed_mix, pass0: int, per_pass: int, start: in
     return stored, rays
 
 
-def _map(pool, fn, items):
-    return pool.map(fn, items) if pool is not None else map(fn, items)
-
-
 def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initial_radius: float | None = None,
                 max_depth: int = 8, seed: int = 0, *, prepared: PreparedScene | None = None, alpha: float = ALPHA,
                 caustics: bool = True, callback=None, first_pass: int = 0, threads: int | None = None) -> SPPMResult:
@@ -633,9 +629,9 @@ def render_sppm(scene, camera: Camera, passes: int, photons_per_pass: int, initi
     hash keyed by (seed, pass, pixel) (eye paths: ``path``'s keys of sample ``pass``) and (seed,
     pass, photon). :func:`render_sppm_numpy` is the same estimator in numpy, its tested
     reference. A block's eye paths and photons are traced while the previous block's passes are
-    gathered (they never read the radii): at 256 passes of the bench's caustic on two threads,
-    0.84x the time of tracing and gathering in turn. history's time_s: the pass's share of its
-    block's time, from the block's submission (so it overlaps the previous block's gathers).
+    gathered (they never read the radii; docs/architecture.md, session 41). history's time_s:
+    the pass's share of its block's time, from the block's submission (so it overlaps the
+    previous block's gathers).
     """
     t0 = time.perf_counter()
     passes, photons_per_pass, max_depth = int(passes), int(photons_per_pass), int(max_depth)
@@ -695,19 +691,20 @@ def _render_groups(ps, camera: Camera, groups: list, photons_per_pass: int, init
         return pass0, nb, out, tb, [pool.submit(work, job) for job in jobs]
 
     rays = 0
-    pending = None
     try:
         # the next block is traced while this one's passes are gathered: eye paths and photons
         # never read the radii, so only the (serial, pass-ordered) gathers wait on each other
-        starts_of_blocks = list(range(first, last, block))
-        for bi in range(len(starts_of_blocks)):
-            pass0, nb, out, tb, parts_list = pending if pending is not None else launch(starts_of_blocks[bi])
+        block_starts = list(range(first, last, block))
+        pending = launch(block_starts[0])
+        for bi in range(len(block_starts)):
+            pass0, nb, out, tb, parts_list = pending
             stored = []
             for part in parts_list:
                 parts, nr = part.result() if pool is not None else part
                 stored.extend(parts)
                 rays += nr
-            pending = launch(starts_of_blocks[bi + 1]) if bi + 1 < len(starts_of_blocks) else None
+            if bi + 1 < len(block_starts):
+                pending = launch(block_starts[bi + 1])
             if stored:
                 p, wi, flux, depth, idx = (np.concatenate(c) for c in zip(*stored))
             else:
