@@ -31,8 +31,8 @@ import numpy as np
 from numba import njit
 
 from .. import embree_direct as _edirect
-from .path_kernels import (_GOLDEN, _M2, _albedo, _facing_normal, _frame, _fresnel_dielectric, _hit_point, _mix64,
-                           _pick, _sample_area, _sample_delta)
+from .path_kernels import (_GOLDEN, _M2, _albedo, _cos_sin_2pi, _facing_normal, _frame, _fresnel_dielectric, _hit_point,
+                           _mix64, _pick, _sample_area, _sample_delta)
 from .path_kernels import _offset as _eps
 from .path_kernels import _uniform as _u
 
@@ -261,8 +261,8 @@ def start_light(ks, cfg, keys_l, V, Fl, lkind, idx, st, o32, d32):
                 nx, ny, nz = -nx, -ny, -nz
             (sx, sy, sz), (tx, ty, tz) = _frame(nx, ny, nz)
             r = math.sqrt(u3)
-            phi = 2.0 * math.pi * u4
-            lx, ly, lz = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u3))
+            c_, s_ = _cos_sin_2pi(u4)
+            lx, ly, lz = r * c_, r * s_, math.sqrt(max(0.0, 1.0 - u3))
             dx = lx * sx + ly * tx + lz * nx
             dy = lx * sy + ly * ty + lz * ny
             dz = lx * sz + ly * tz + lz * nz
@@ -290,8 +290,8 @@ def start_light(ks, cfg, keys_l, V, Fl, lkind, idx, st, o32, d32):
                 px, py, pz = ks.d_pos[li, 0], ks.d_pos[li, 1], ks.d_pos[li, 2]
                 z = 1.0 - 2.0 * u3
                 r = math.sqrt(max(0.0, 1.0 - z * z))
-                phi = 2.0 * math.pi * u4
-                dx, dy, dz = r * math.cos(phi), r * math.sin(phi), z
+                c_, s_ = _cos_sin_2pi(u4)
+                dx, dy, dz = r * c_, r * s_, z
                 s = 4.0 * math.pi / pmc
                 f0, f1, f2 = I0 * s, I1 * s, I2 * s
                 pdf_dir = 0.25 * _INV_PI
@@ -300,9 +300,9 @@ def start_light(ks, cfg, keys_l, V, Fl, lkind, idx, st, o32, d32):
                 ci, co = ks.d_cos[li, 0], ks.d_cos[li, 1]
                 cz = 1.0 - u3 * (1.0 - co)
                 sz_ = math.sqrt(max(0.0, 1.0 - cz * cz))
-                phi = 2.0 * math.pi * u4
+                c_, s_ = _cos_sin_2pi(u4)
                 (sx, sy, sz), (tx, ty, tz) = _frame(ax, ay, az)
-                lx, ly = sz_ * math.cos(phi), sz_ * math.sin(phi)
+                lx, ly = sz_ * c_, sz_ * s_
                 dx = lx * sx + ly * tx + cz * ax
                 dy = lx * sy + ly * ty + cz * ay
                 dz = lx * sz + ly * tz + cz * az
@@ -313,8 +313,8 @@ def start_light(ks, cfg, keys_l, V, Fl, lkind, idx, st, o32, d32):
             else:  # directional: a disk of the scene's bounding radius, upstream of the scene
                 (sx, sy, sz), (tx, ty, tz) = _frame(ax, ay, az)
                 r = R * math.sqrt(u1)
-                phi = 2.0 * math.pi * u2
-                rc, rs = r * math.cos(phi), r * math.sin(phi)
+                c_, s_ = _cos_sin_2pi(u2)
+                rc, rs = r * c_, r * s_
                 px = (cfg.centre[0] - 2.0 * R * ax) + rc * sx + rs * tx
                 py = (cfg.centre[1] - 2.0 * R * ay) + rc * sy + rs * ty
                 pz = (cfg.centre[2] - 2.0 * R * az) + rc * sz + rs * tz
@@ -443,8 +443,8 @@ def extend(ks, cfg, i, light, prim, hu, hv, m, idx, st, keys, V, Fl, Iv, img, tg
         if lamb:
             u1, u2 = _u(key, base + 1), _u(key, base + 2)
             rr = math.sqrt(u1)
-            phi = 2.0 * math.pi * u2
-            lx, ly, lz = rr * math.cos(phi), rr * math.sin(phi), math.sqrt(max(0.0, 1.0 - u1))
+            c_, s_ = _cos_sin_2pi(u2)
+            lx, ly, lz = rr * c_, rr * s_, math.sqrt(max(0.0, 1.0 - u1))
             spdf = max(lz, 0.0) * _INV_PI
             valid = woz > 0.0 and spdf > 0.0
             w0, w1, w2 = a0, a1, a2

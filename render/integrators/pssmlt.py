@@ -38,7 +38,9 @@ the same function in numpy (render.bsdf's samplers, render.lights.LightSet,
 render.accel.spawn_origin), kept as the tested reference (tests/render/test_pssmlt_compiled.py:
 row by row). The Metropolis chains run compiled too (render.integrators.pssmlt_kernels: proposals,
 acceptance, splats and counters), a wavefront over every chain of every group of a thread: one
-path sampler call per step for all of them; :func:`_run_group_numpy` is the same chain in numpy,
+path sampler call per step for all of them, and with a pinhole camera every step of a thread in
+one compiled call (pssmlt_kernels.run_chains, Embree called from compiled code: the per-step
+Python calls cost about a fifth of a render); :func:`_run_group_numpy` is the same chain in numpy,
 value for value (the tested reference: tests/render/test_pssmlt_compiled.py).
 
 **Metropolis.** The scalar importance is I(U) = luminance (Rec. 709: 0.2126, 0.7152, 0.0722)
@@ -140,8 +142,8 @@ from ..sampling import INV_PI, dot3, max3, mis_weight, orthonormal_frame, path_k
 from .prepared import PreparedScene, prepare
 from .settings import RenderSettings, check_heuristic, heuristic_exponent
 from .pssmlt_kernels import (LUM_B, LUM_G, LUM_R, S1, S2, SMALL_STEP_LEVELS, SMALL_STEPS, accept_and_splat,
-                             pinhole_rays, propose, sanitize_rows, splat_uniform, uniform_rows)
-from .volpath import VolContext, trace_primary
+                             pinhole_rays, propose, run_chains, sanitize_rows, splat_uniform, uniform_rows)
+from .volpath import VolContext, primary_config, surface_tracer, trace_primary, vol_buffers
 
 __all__ = ["Options", "DIMS_PER_BOUNCE", "RR_DEPTH", "LUMINANCE", "primary_dims", "luminance", "sample_paths",
            "sample_paths_numpy", "small_step",
@@ -594,7 +596,8 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
                 rr_depth: int | None = None) -> list[_GroupRun]:
     """Groups ``specs`` = [(group, mutations), ...] with compiled chains
     (render.integrators.pssmlt_kernels), a wavefront over every chain of every group: one path
-    sampler call per step for all of them. Each group is the pure function of its arguments that
+    sampler call per step for all of them (all steps in one compiled call, run_chains, when the
+    camera is a pinhole and Embree is callable from compiled code). Each group is the pure function of its arguments that
     :func:`_run_group_numpy` computes (the same bootstrap, starts and chain random numbers), so
     its bytes do not depend on which groups share the batch. Returns one run per spec, in order."""
     k = camera.intrinsics
@@ -641,7 +644,16 @@ def _run_groups(ps: PreparedScene, camera: Camera, specs: list[tuple[int, int]],
     steps_of = np.array([r.steps for r in runs], np.int64)
     Y, large = np.zeros((nc, D)), np.zeros(nc, np.bool_)
     active = np.arange(nc)
-    for step in range(int(steps_of.max()) if nc else 0):
+    tracer = surface_tracer(ctx, primary_config(ps, max_depth, caustics, heuristic, rr_depth))
+    fused = tracer is not None and run_chains is not None and not k.has_distortion
+    if fused and nc:  # every step in one compiled call
+        c2w = np.asarray(camera.cam_to_world, dtype=np.float64)
+        cam = (int(k.width), int(k.height), float(k.fx), float(k.fy), float(k.cx), float(k.cy),
+               np.ascontiguousarray(c2w[:3, :3]), np.ascontiguousarray(c2w[:3, 3]))
+        run_chains(tracer, cam, float(large_step), X, active, owner, steps_of, ckeys, Y, large, np.empty(nc, np.int64),
+                   vol_buffers(nc), np.empty((nc, 3)), np.zeros(1, np.int64), uniform_share, b, pix_x, f_x, I_x, image,
+                   rejections, moved, *counters, *bins, nonfinite)
+    for step in range(int(steps_of.max()) if nc and not fused else 0):
         if np.any(steps_of[owner[active]] <= step):  # groups with fewer steps have finished
             active = active[steps_of[owner[active]] > step]
         m = len(active)

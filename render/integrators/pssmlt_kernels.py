@@ -21,9 +21,11 @@ import numpy as np
 from numba import njit
 
 from .path_kernels import _uniform
+from .path_types import F_DELTA
+from .volpath_kernels import trace_surfaces
 
 __all__ = ["S1", "S2", "SMALL_STEPS", "SMALL_STEP_LEVELS", "LUM_R", "LUM_G", "LUM_B", "IMPORTANCE_EDGES", "propose",
-           "uniform_rows", "accept_and_splat", "splat_uniform", "sanitize_rows", "pinhole_rays"]
+           "uniform_rows", "accept_and_splat", "splat_uniform", "sanitize_rows", "pinhole_rays", "run_chains"]
 
 _JIT = dict(cache=True, nogil=True, error_model="numpy")
 
@@ -174,6 +176,20 @@ def splat_uniform(image, pix, f, I, b, c):
             image[p, 2] += f[i, 2] * w
 
 
+@njit(inline="always", **_JIT)
+def _pinhole_ray(u0, u1, width, height, fx, fy, cx, cy, R):
+    """One primary sample's row-major pixel and unit ray direction (3 floats, world axes)."""
+    x = u0 * width
+    y = u1 * height
+    pix = min(np.int64(y), height - 1) * width + min(np.int64(x), width - 1)
+    a = (x - cx) / fx
+    b = (y - cy) / fy
+    inv = 1.0 / math.sqrt(a * a + b * b + 1.0)
+    a, b, c = a * inv, b * inv, inv
+    return (pix, a * R[0, 0] + b * R[0, 1] + c * R[0, 2], a * R[1, 0] + b * R[1, 1] + c * R[1, 2],
+            a * R[2, 0] + b * R[2, 1] + c * R[2, 2])
+
+
 @njit(**_JIT)
 def pinhole_rays(U, width, height, fx, fy, cx, cy, R, t):
     """The camera rays of primary samples U (N, >= 2) through an undistorted pinhole camera
@@ -186,14 +202,59 @@ def pinhole_rays(U, width, height, fx, fy, cx, cy, R, t):
     o = np.empty((n, 3))
     d = np.empty((n, 3))
     for i in range(n):
-        x = U[i, 0] * width
-        y = U[i, 1] * height
-        pix[i] = min(np.int64(y), height - 1) * width + min(np.int64(x), width - 1)
-        a = (x - cx) / fx
-        b = (y - cy) / fy
-        inv = 1.0 / math.sqrt(a * a + b * b + 1.0)
-        a, b, c = a * inv, b * inv, inv
-        for j in range(3):
-            d[i, j] = a * R[j, 0] + b * R[j, 1] + c * R[j, 2]
-            o[i, j] = t[j]
+        pix[i], d[i, 0], d[i, 1], d[i, 2] = _pinhole_ray(U[i, 0], U[i, 1], width, height, fx, fy, cx, cy, R)
+        o[i, 0], o[i, 1], o[i, 2] = t[0], t[1], t[2]
     return pix, o, d
+
+
+if trace_surfaces is not None:
+    @njit(**_JIT)
+    def run_chains(tracer, cam, large_step, X, active, owner, steps_of, keys, Y, large, pix_y, bufs, L, err,
+                   uniform_share, b, pix_x, f_x, I_x, image, rejections, moved, g_proposed, g_accepted, g_large,
+                   g_accepted_large, g_longest, g_bins_proposed, g_bins_accepted, g_nonfinite):
+        """Every step of the chains ``active`` in one compiled call: per step, the chains whose
+        group has run steps_of[group] steps leave ``active`` (compacted in place, in order),
+        :func:`propose`, the proposals' pinhole rays, the path sampler
+        (render.integrators.volpath_kernels.trace_surfaces, Embree called from compiled code) and
+        :func:`accept_and_splat`: render.integrators.pssmlt._run_groups' Python loop, the same
+        operations in the same order. tracer: render.integrators.volpath.surface_tracer's tuple;
+        cam: (width, height, fx, fy, cx, cy, R (3, 3) camera-to-world rotation, centre (3,));
+        bufs: render.integrators.volpath.vol_buffers of at least len(active) rows; pix_y (C,)
+        int64 and L (C, 3) float64 scratch. Returns the rays traced."""
+        ks, m_alpha, m_eta, m_k, md, cfg, handle, rounds = tracer
+        width, height, fx, fy, cx, cy, R, t = cam
+        cur, nxt, q, hit, occ = bufs
+        ints, keys0, flt, flags, last_p, o32, d32 = cur
+        m = active.shape[0]
+        n_steps = 0
+        for g in range(steps_of.shape[0]):
+            n_steps = max(n_steps, steps_of[g])
+        rays = 0
+        for step in range(n_steps if m > 0 else 0):
+            live = 0
+            for i in range(m):
+                c = active[i]
+                if steps_of[owner[c]] > step:
+                    active[live] = c
+                    live += 1
+            m = live
+            act = active[:m]
+            propose(X, act, keys, step, large_step, Y, large)
+            for i in range(m):
+                pix_y[i], dx, dy, dz = _pinhole_ray(Y[i, 0], Y[i, 1], width, height, fx, fy, cx, cy, R)
+                ints[i, 0], ints[i, 1], ints[i, 2], ints[i, 3] = i, 2, 0, -1
+                keys0[i] = 0
+                flt[i, 0], flt[i, 1], flt[i, 2], flt[i, 3] = 1.0, 1.0, 1.0, 0.0
+                flags[i] = F_DELTA  # the camera ray counts as specular: emission seen directly has weight 1
+                o32[i, 0], o32[i, 1], o32[i, 2] = t[0], t[1], t[2]
+                d32[i, 0], d32[i, 1], d32[i, 2] = dx, dy, dz
+                last_p[i, 0], last_p[i, 1], last_p[i, 2] = o32[i, 0], o32[i, 1], o32[i, 2]
+                L[i, 0] = L[i, 1] = L[i, 2] = 0.0
+            rays += trace_surfaces(ks, m_alpha, m_eta, m_k, md, cfg, Y[:m], handle, rounds, m, cur, nxt, q, hit, occ,
+                                   L, err)
+            accept_and_splat(act, keys, step, uniform_share, owner, b, X, pix_x, f_x, I_x, Y, large, pix_y[:m], L[:m],
+                             image, rejections, moved, g_proposed, g_accepted, g_large, g_accepted_large, g_longest,
+                             g_bins_proposed, g_bins_accepted, g_nonfinite)
+        return rays
+else:  # pragma: no cover - the Python loop of render.integrators.pssmlt runs the steps
+    run_chains = None

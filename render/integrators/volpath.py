@@ -72,11 +72,11 @@ from .path import _STRATEGY_CODES, kernel_scene_of, pinhole_of
 from .path_kernels import F_DELTA, SAMPLER_SOBOL, accumulate, accumulate_replicates, add_unoccluded, sample_camera_rays
 from .prepared import PreparedScene, prepare
 from .volpath_kernels import (MediaKernel, VolConfig, media_kernel, shadow_flush, shadow_media_step, shadow_start,
-                              vol_bounce)
+                              trace_surfaces, vol_bounce)
 from .settings import RenderSettings, check_heuristic, check_sampler, check_strategy, heuristic_exponent, parse_sample_range
 
 __all__ = ["Options", "VolContext", "volpath_context", "trace", "render_volpath", "render_result", "render_result_numpy",
-           "trace_primary", "surface_eval",
+           "trace_primary", "primary_config", "surface_tracer", "vol_buffers", "surface_eval",
            "surface_sample", "shadow_transmittance"]
 
 _MAX_CROSSINGS = 16
@@ -592,10 +592,16 @@ def _wavefront(ctx: VolContext, comp: _Compiled, cfg: VolConfig, cur: tuple, mid
     cur[4][:] = cur[5]
     L = np.zeros((n, 3))
     err = np.zeros(1, np.int64)
+    rounds = 4 * (cfg.max_depth + 1) + _MAX_CROSSINGS
+    if not cfg.has_media and accel.direct is not None and trace_surfaces is not None:  # one compiled call
+        hit = (np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
+        nrays = trace_surfaces(ks, comp.alpha, comp.eta, comp.k, comp.media, cfg, U, accel.direct.handle, rounds,
+                               n, cur, nxt, q, hit, np.empty(n, np.int32), L, err)
+        return L, int(nrays)
     no_hits = (np.zeros(0, np.int32), np.zeros(0, np.float32))
     m = n
     nrays = 0
-    for _ in range(4 * (cfg.max_depth + 1) + _MAX_CROSSINGS):
+    for _ in range(rounds):
         if m == 0:
             break
         nrays += 2 * m if cfg.has_media else m
@@ -627,6 +633,37 @@ def _wavefront(ctx: VolContext, comp: _Compiled, cfg: VolConfig, cur: tuple, mid
     return L, nrays
 
 
+def primary_config(ps: PreparedScene, max_depth: int, caustics: bool, heuristic: str,
+                   rr_depth: int | None = None) -> VolConfig:
+    """The kernels' :class:`VolConfig` of :func:`trace_primary` (no media; path's pruning and
+    shadow-ray rules)."""
+    return VolConfig(max_depth=int(max_depth), rr_depth=int(rr_depth or 0), roulette=rr_depth is not None,
+                     caustics=bool(caustics),
+                     strategy=_STRATEGY_CODES["mis"], mis_exponent=heuristic_exponent(heuristic),
+                     has_bg=bool(ps.background.max() > 0), has_media=False, has_lights=not ps.lights.empty,
+                     path_rules=True)
+
+
+def surface_tracer(ctx: VolContext, cfg: VolConfig):
+    """What :func:`render.integrators.volpath_kernels.trace_surfaces` reads besides the wavefront
+    (kernel scene, GGX tables, media kernel, config, Embree scene handle, rounds), or None when
+    Embree cannot be called from compiled code or the scene has media: then only
+    :func:`trace_primary`'s Python driver applies."""
+    accel = ctx.ps.accel
+    if cfg.has_media or accel.direct is None or trace_surfaces is None:
+        return None
+    comp = _compiled_of(ctx)
+    return (kernel_scene_of(ctx.ps), comp.alpha, comp.eta, comp.k, comp.media, cfg, accel.direct.handle,
+            4 * (cfg.max_depth + 1) + _MAX_CROSSINGS)
+
+
+def vol_buffers(n: int) -> tuple:
+    """Two wavefront states, a shadow queue, Embree's hit outputs and occlusion flags for up to
+    n paths (:func:`render.integrators.volpath_kernels.trace_surfaces`' buffers)."""
+    hit = (np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
+    return _vol_state(n), _vol_state(n), _shadow_queue(n), hit, np.empty(n, np.int32)
+
+
 def trace_primary(ps: PreparedScene, o: np.ndarray, d: np.ndarray, U: np.ndarray, max_depth: int, caustics: bool,
                   heuristic: str, ctx: VolContext | None = None, rr_depth: int | None = None) -> np.ndarray:
     """Radiance (N, 3) along rays o, d (N, 3) of a scene without media, every random number read
@@ -639,11 +676,7 @@ def trace_primary(ps: PreparedScene, o: np.ndarray, d: np.ndarray, U: np.ndarray
     ctx = ctx if ctx is not None else VolContext(ps, None)
     comp = _compiled_of(ctx)
     n = len(o)
-    cfg = VolConfig(max_depth=int(max_depth), rr_depth=int(rr_depth or 0), roulette=rr_depth is not None,
-                    caustics=bool(caustics),
-                    strategy=_STRATEGY_CODES["mis"], mis_exponent=heuristic_exponent(heuristic),
-                    has_bg=bool(ps.background.max() > 0), has_media=False, has_lights=not ps.lights.empty,
-                    path_rules=True)
+    cfg = primary_config(ps, max_depth, caustics, heuristic, rr_depth)
     cur = _vol_state(n)
     cur[1][:] = 0
     cur[5][:], cur[6][:] = o, d
