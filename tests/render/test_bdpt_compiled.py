@@ -18,7 +18,8 @@ unweighted in ``connect`` fails the independent-seed test (94.7% of channels pas
 light-tracing (t = 1) MIS ratios squared (the 4th power) fails the same-seed test (39% of
 channels within 1e-5, largest relative difference 0.079) but not the independent-seed one at
 384 passes, which is why both exist; not clearing a reused workspace's flags between batches
-(``_render_chunk_compiled``) fails all four (the bytes test: films differ across threads).
+(``_render_chunk_compiled``) fails all four (the bytes test: films differ across threads) and the
+workspace-reuse test.
 """
 from __future__ import annotations
 
@@ -120,3 +121,20 @@ def test_bytes_across_threads_and_batches(everything, monkeypatch):
         other = render_bdpt(sc, cam, 12, max_depth=4, seed=3, prepared=ps, batch_paths=batch, threads=2)
         assert np.allclose(other.film.s1, one.film.s1, rtol=1e-12, atol=0)
         assert np.allclose(other.film.s2, one.film.s2, rtol=1e-12, atol=0)
+
+
+def test_workspaces_kept_across_renders_leak_nothing(everything):
+    """Workspaces are kept for the next render of the same shape (render.integrators.bdpt._SPARE):
+    a render after renders of another seed and, through the same spares, another max depth (a
+    different shape: those spares are dropped) gives the film of a render from fresh workspaces."""
+    import render.integrators.bdpt as bdpt
+
+    sc, cam, ps = everything
+    while not bdpt._SPARE.empty():  # fresh workspaces
+        bdpt._SPARE.get_nowait()
+    first = render_bdpt(sc, cam, 6, max_depth=4, seed=21, prepared=ps, batch_paths=300, threads=2)
+    assert not bdpt._SPARE.empty()
+    render_bdpt(sc, cam, 6, max_depth=6, seed=5, prepared=ps, batch_paths=300, threads=2)
+    render_bdpt(sc, cam, 6, max_depth=4, seed=5, prepared=ps, batch_paths=300, threads=2)
+    again = render_bdpt(sc, cam, 6, max_depth=4, seed=21, prepared=ps, batch_paths=300, threads=2)
+    assert np.array_equal(first.film.s1, again.film.s1) and np.array_equal(first.film.s2, again.film.s2)
