@@ -815,9 +815,10 @@ class _Workspace:
                        + 4 * cap * 8)
 
 
-#: workspaces not in use, kept across renders: at most one per thread is ever made, and a fresh
-#: one's first touch (page faults on ~10 MB at max depth 8) took 4 ms, ~5% of a 48 x 48, 64-pass
-#: render on two threads. Only workspaces up to _SPARE_BYTES are kept (max depth 64 makes 100 MB).
+#: workspaces not in use, kept across renders: a fresh one's first touch (page faults on ~10 MB
+#: at max depth 8) took 4 ms, and two threads faulting at once slowed each other: kept, a 48 x 48,
+#: 64-pass render took 0.73-0.88x the time (three interleaved runs, bench_hard_paths' caustic).
+#: Only workspaces up to _SPARE_BYTES are kept (max depth 64 makes 100 MB).
 _SPARE: queue.SimpleQueue = queue.SimpleQueue()
 _SPARE_BYTES = 32 << 20
 
