@@ -38,7 +38,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .path_kernels import (_GOLDEN, _INV_PI, _JIT, _M2, _TMAX_CAP, DIELECTRIC, DIRECTIONAL, LAMBERT,
+from .path_kernels import (_GOLDEN, _INV_PI, _JIT, _cos_sin_2pi, _M2, _TMAX_CAP, DIELECTRIC, DIRECTIONAL, LAMBERT,
                            MIRROR, POINT, SAMPLER_INDEPENDENT, SPOT, _facing_normal, _frame, _hit_point,
                            _lambert_albedo, _mix64, _offset, _pick,
                            _queue_ray, _sample_area, _sample_delta, _sample_specular, _uniform)
@@ -212,8 +212,8 @@ def emit_photons(ks, centre, radius, keys, idx, o32, d32, beta):
             if two and _uniform(key, 5) < 0.5:
                 nx, ny, nz = -nx, -ny, -nz
             r = math.sqrt(ud0)
-            phi = 2.0 * math.pi * ud1
-            wx, wy, wz = _to_world(r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - ud0)), nx, ny, nz)
+            c_, s_ = _cos_sin_2pi(ud1)
+            wx, wy, wz = _to_world(r * c_, r * s_, math.sqrt(max(0.0, 1.0 - ud0)), nx, ny, nz)
             s = math.pi * (2.0 if two else 1.0) / max(area[k, 12], 1e-300)  # pi A [x 2] / pmf
             f0, f1, f2 = area[k, 13] * s, area[k, 14] * s, area[k, 15] * s
             eps = _offset(px, py, pz, extent)
@@ -226,16 +226,16 @@ def emit_photons(ks, centre, radius, keys, idx, o32, d32, beta):
             if lk == POINT:
                 z = 1.0 - 2.0 * ud0
                 r = math.sqrt(max(0.0, 1.0 - z * z))
-                phi = 2.0 * math.pi * ud1
-                wx, wy, wz = r * math.cos(phi), r * math.sin(phi), z
+                c_, s_ = _cos_sin_2pi(ud1)
+                wx, wy, wz = r * c_, r * s_, z
                 ox, oy, oz = d_pos[li, 0], d_pos[li, 1], d_pos[li, 2]
                 s = 4.0 * math.pi / pm
             elif lk == SPOT:
                 ci, co = d_cos[li, 0], d_cos[li, 1]
                 cz = 1.0 - ud0 * (1.0 - co)
                 sz = math.sqrt(max(0.0, 1.0 - cz * cz))
-                phi = 2.0 * math.pi * ud1
-                wx, wy, wz = _to_world(sz * math.cos(phi), sz * math.sin(phi), cz, d_dir[li, 0], d_dir[li, 1], d_dir[li, 2])
+                c_, s_ = _cos_sin_2pi(ud1)
+                wx, wy, wz = _to_world(sz * c_, sz * s_, cz, d_dir[li, 0], d_dir[li, 1], d_dir[li, 2])
                 ox, oy, oz = d_pos[li, 0], d_pos[li, 1], d_pos[li, 2]
                 x = min(max((cz - co) / max(ci - co, 1e-9), 0.0), 1.0)  # render.scene.spot_falloff
                 s = x * x * (3.0 - 2.0 * x) * 2.0 * math.pi * (1.0 - co) / pm
@@ -243,8 +243,8 @@ def emit_photons(ks, centre, radius, keys, idx, o32, d32, beta):
                 ax, ay, az = d_dir[li, 0], d_dir[li, 1], d_dir[li, 2]
                 (sx, sy, sz_), (tx, ty, tz) = _frame(ax, ay, az)
                 r = radius * math.sqrt(up0)
-                phi = 2.0 * math.pi * up1
-                rc, rs = r * math.cos(phi), r * math.sin(phi)
+                c_, s_ = _cos_sin_2pi(up1)
+                rc, rs = r * c_, r * s_
                 ox = centre[0] - 2.0 * radius * ax + rc * sx + rs * tx
                 oy = centre[1] - 2.0 * radius * ay + rc * sy + rs * ty
                 oz = centre[2] - 2.0 * radius * az + rc * sz_ + rs * tz
@@ -312,9 +312,9 @@ def photon_bounce(ks, depth, max_depth, caustics, prim, hu, hv, keys, idx, beta,
             f0, f1, f2 = _lambert_albedo(albedo, tex, uv, tex_data, obj, t, u, v)
             u4, u5 = _uniform(key, base + 4), _uniform(key, base + 5)
             r = math.sqrt(u4)
-            phi = 2.0 * math.pi * u5
+            c_, s_ = _cos_sin_2pi(u5)
             lz = math.sqrt(max(0.0, 1.0 - u4))
-            wx, wy, wz = _to_world(r * math.cos(phi), r * math.sin(phi), lz, nx, ny, nz)
+            wx, wy, wz = _to_world(r * c_, r * s_, lz, nx, ny, nz)
             valid = cos_o != 0.0 and lz > 0.0
         else:
             valid, wx, wy, wz, f0, f1, f2, spdf = _sample_specular(kind, albedo[obj, 0], albedo[obj, 1],
