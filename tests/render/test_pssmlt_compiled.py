@@ -139,3 +139,29 @@ def test_compiled_sanitize_equals_the_numpy_rule():
     for arr in (f.copy(), np.asfortranarray(f)):
         out, bad = _sanitize(arr)
         assert out is arr and np.array_equal(bad, bad_ref) and np.array_equal(out, want)
+
+
+def test_chains_in_one_call_equal_the_per_step_driver(monkeypatch):
+    """pssmlt_kernels.run_chains (every step of a thread in one compiled call, Embree queried from
+    it) against the per-step Python loop it replaced (run_chains off): the same groups bit for bit
+    (images, counters), on the glass scene (seed 7, 64 chains, two groups of 2048 and 2049
+    mutations: the second runs one step more, so the active chains shrink in the last step), and
+    the per-step loop's sampler with volpath's one-call wavefront (trace_surfaces) off too."""
+    from render.integrators import pssmlt, volpath
+
+    sc, cam = _glass_scene(), _glass_camera()
+    ps = prepare(sc)
+    specs = [(3, 2048), (5, 2049)]
+    args = (64, 2000, 6, 7, 0.3, True, "power")
+    fused = pssmlt._run_groups(ps, cam, specs, *args)
+    counts = ("proposed", "accepted", "large", "accepted_large", "longest_rejection_run", "moved", "nonfinite")
+    for off in (("render.integrators.pssmlt.run_chains",),
+                ("render.integrators.pssmlt.run_chains", "render.integrators.volpath.trace_surfaces")):
+        with monkeypatch.context() as m:
+            for name in off:
+                m.setattr(name, None)
+            assert pssmlt.run_chains is None and (len(off) == 1 or volpath.trace_surfaces is None)
+            stepwise = pssmlt._run_groups(ps, cam, specs, *args)
+        for a, b in zip(fused, stepwise):
+            assert np.array_equal(a.image, b.image) and a.image.max() > 0
+            assert [getattr(a, c) for c in counts] == [getattr(b, c) for c in counts]
